@@ -1,0 +1,39 @@
+"""Shared fixtures: each ROS test gets a DDS domain of its own, and subprocess helpers."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+_domain_counter = itertools.count()
+
+
+@pytest.fixture
+def ros_domain(monkeypatch) -> int:
+    """A ROS_DOMAIN_ID for this test alone (derived from the run's base id and the pid).
+
+    Set in os.environ, so the in-process rclpy context and every subprocess started after it use
+    it. Domains 0..232 are valid for Fast DDS; we stay in 1..200.
+    """
+    base = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    domain = 1 + (base * 7 + os.getpid() + next(_domain_counter) * 13) % 200
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return domain
+
+
+def run_python(script: Path | str, *args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    """Run a helper script with this interpreter in its own process; capture text output."""
+    return subprocess.run(
+        [sys.executable, str(script), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=os.environ.copy(),
+    )
