@@ -1,0 +1,8 @@
+"""Datasets of labelled trajectories: toy MIL bags and screened task trajectories."""
+
+from .screening import classify, generate_screened, screen_navigation, screen_pool, screening_spec
+from .toy import TOY_DATASETS, make_toy_dataset
+from .trajectories import TrajectoryDataset
+
+__all__ = ["TrajectoryDataset", "TOY_DATASETS", "make_toy_dataset", "classify", "generate_screened",
+           "screen_navigation", "screen_pool", "screening_spec"]

@@ -1,0 +1,257 @@
+"""Screened trajectory datasets (paper App. D.2): generate-and-select with per-class limits.
+
+Each task has a trajectory classifier C_k and a limit p_k on the fraction of the dataset any class
+may take. Trajectories are drawn (uniform-random policy for the navigation tasks, vectorised over
+`batch` agents at once), classified, and examined in draw order: a trajectory is kept while its
+class holds fewer than max(1, floor(p_k * n_target)) trajectories, otherwise discarded, until the
+dataset holds n_target. (The floor of 1 only matters for small test datasets, where p_k * n_target
+< 1 would otherwise admit nothing.) For Lunar Lander, a pool of trajectories from any policy is screened the same way
+(`screen_pool`).
+
+Class ids (int64) and their meaning:
+- timer:   num_neg * 51 + num_pos (steps in the treasure with reward -1 / +1), 51 x 51 classes
+- moving:  num_treasure (steps with reward 1), 0..100
+- key:     0 no_key, 1 key_no_treasure, 2 treasure (visited after the key); with
+           `key_fourth_class`, 3 treasure_no_key (treasure visited, never with the key), which
+           is otherwise part of no_key
+- charger: num_treasure * 20 + (charge_bin - 1), charge_bin = min(floor(mean charge / 0.05) + 1,
+           20) over the steps in the treasure (bin 1 if never in it), 101 x 20 classes
+- lunar_lander: pad_bin * 6 + take_off * 3 + hover_bin, pad_bin in {0, 1..49, 50+} -> 0, 1, 2;
+           hover_bin in {0, 1..19, 20+} -> 0, 1, 2 (see `lunar_lander_classes`)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..oracles import make_oracle
+from ..oracles.base import OracleLabels
+from ..tasks import NAVIGATION_TASKS, check_task
+from ..tasks.navigation import EPISODE_LENGTH, TREASURE_ZONE, rollout_random
+from .trajectories import TrajectoryDataset
+
+KEY_CLASS_NAMES = ("no_key", "key_no_treasure", "treasure", "treasure_no_key")
+
+
+@dataclass(frozen=True)
+class ScreeningSpec:
+    """Per-class limits of a task: `limits[c]` is the max fraction for class c, or `default`."""
+
+    n_classes: int
+    default: float
+    limits: dict | None = None
+
+    def max_count(self, cls: int, n_target: int) -> int:
+        p = self.default if self.limits is None else self.limits.get(cls, self.default)
+        return max(1, math.floor(p * n_target + 1e-9))
+
+
+def screening_spec(task: str, key_fourth_class: bool = False) -> ScreeningSpec:
+    """The paper's classes and limits; the Key task's optional fourth class gets limits
+    0.2 / 0.2 / 0.4 / 0.2 (no_key, key_no_treasure, treasure, treasure_no_key): the paper's 1:1:2
+    ratio with a share for the new class."""
+    check_task(task)
+    if task == "timer":
+        return ScreeningSpec(51 * 51, 0.002)
+    if task == "moving":
+        return ScreeningSpec(101, 0.05)
+    if task == "key":
+        if key_fourth_class:
+            return ScreeningSpec(4, 0.2, {0: 0.2, 1: 0.2, 2: 0.4, 3: 0.2})
+        return ScreeningSpec(3, 0.25, {0: 0.25, 1: 0.25, 2: 0.5})
+    if task == "charger":
+        return ScreeningSpec(101 * 20, 0.002)
+    return ScreeningSpec(18, 0.2)
+
+
+def classify(task: str, states: np.ndarray, labels: OracleLabels,
+             key_fourth_class: bool = False) -> np.ndarray:
+    """Class ids (n,) of labelled trajectories; states (n, L, d) are the labelled instances."""
+    check_task(task)
+    if task == "lunar_lander":
+        return lunar_lander_classes(states, labels)
+    live = np.arange(states.shape[1])[None, :] < labels.lengths[:, None]
+    in_treasure = TREASURE_ZONE.contains(states) & live
+    if task == "timer":
+        neg = (in_treasure & (labels.rewards < 0)).sum(axis=1)
+        pos = (in_treasure & (labels.rewards > 0)).sum(axis=1)
+        return neg * 51 + pos
+    if task == "moving":
+        return (labels.rewards > 0).sum(axis=1)
+    if task == "key":
+        has_key = labels.hidden[:, :, 0] > 0
+        got_key = (has_key & live).any(axis=1)
+        treasure_with_key = (in_treasure & has_key).any(axis=1)
+        cls = np.where(treasure_with_key, 2, np.where(got_key, 1, 0))
+        if key_fourth_class:
+            cls = np.where((cls == 0) & in_treasure.any(axis=1), 3, cls)
+        return cls
+    # charger
+    num = in_treasure.sum(axis=1)
+    charge_sum = (labels.hidden[:, :, 0] * in_treasure).sum(axis=1)
+    mean = np.divide(charge_sum, num, out=np.zeros_like(charge_sum), where=num > 0)
+    charge_bin = np.minimum(np.floor(mean / 0.05 + 1e-9).astype(np.int64) + 1, 20)
+    return num * 20 + (charge_bin - 1)
+
+
+def lunar_lander_classes(states: np.ndarray, labels: OracleLabels) -> np.ndarray:
+    """pad_bin x take_off x hover_bin (App. D.2). Hover steps are counted from the step the pad
+    count reaches 50 if it does, else from the first step off the pad after the first landing."""
+    from ..oracles.lunar_lander import r_hover, r_no_contact, r_pad
+
+    n, horizon = states.shape[:2]
+    out = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        length = int(labels.lengths[i])
+        s = np.asarray(states[i, :length], dtype=np.float64)
+        pad = r_pad(s) == 1
+        pad_steps = int(pad.sum())
+        if pad_steps == 0:
+            continue  # class 0: never on the pad, no take-off, no hover
+        first_pad = int(np.argmax(pad))
+        off = (~pad) & (np.arange(length) > first_pad)
+        airborne = (r_no_contact(s) == 1) & (np.arange(length) > first_pad)
+        take_off = int(airborne.any())
+        reached = np.flatnonzero(labels.hidden[i, :length, 0] >= 50)
+        if reached.size:
+            start = int(reached[0])
+        elif off.any():
+            start = int(np.argmax(off))
+        else:
+            start = length
+        hover = int((r_hover(s[start:]) == 1).sum())
+        pad_bin = 1 if pad_steps < 50 else 2
+        hover_bin = 0 if hover == 0 else (1 if hover < 20 else 2)
+        out[i] = pad_bin * 6 + take_off * 3 + hover_bin
+    return out
+
+
+class Screener:
+    """Keeps trajectories in the order offered while their class is under its limit."""
+
+    def __init__(self, spec: ScreeningSpec, n_target: int) -> None:
+        self.spec = spec
+        self.n_target = int(n_target)
+        self.counts: dict[int, int] = {}
+        self.kept = 0
+        self.examined = 0
+
+    @property
+    def full(self) -> bool:
+        return self.kept >= self.n_target
+
+    def offer(self, classes: np.ndarray) -> np.ndarray:
+        """Examine classes in order until full; returns the indices kept."""
+        keep = []
+        for i, c in enumerate(classes.tolist()):
+            if self.full:
+                break
+            self.examined += 1
+            if self.counts.get(c, 0) < self.spec.max_count(c, self.n_target):
+                self.counts[c] = self.counts.get(c, 0) + 1
+                self.kept += 1
+                keep.append(i)
+        return np.asarray(keep, dtype=np.int64)
+
+
+def screen_navigation(task: str, n_target: int = 5000, seed: int = 0, batch: int = 20000,
+                      key_fourth_class: bool = False, max_draws: int = 50_000_000,
+                      progress=None) -> TrajectoryDataset:
+    """Screened dataset of a navigation task from uniform-random trajectories of length 100.
+
+    Raises RuntimeError if `max_draws` trajectories were examined without filling the dataset.
+    `progress(kept, examined)` is called after each batch if given.
+    """
+    if task not in NAVIGATION_TASKS:
+        raise ValueError(f"screen_navigation takes a navigation task {NAVIGATION_TASKS}, got {task!r}")
+    rng = np.random.default_rng(seed)
+    oracle = make_oracle(task)
+    spec = screening_spec(task, key_fourth_class)
+    screener = Screener(spec, n_target)
+    parts = []
+    start = time.perf_counter()
+    while not screener.full:
+        if screener.examined >= max_draws:
+            raise RuntimeError(f"{task}: only {screener.kept}/{n_target} trajectories kept after "
+                               f"{screener.examined} draws (max_draws)")
+        states, actions = rollout_random(batch, rng)
+        instances = states[:, :EPISODE_LENGTH]
+        labels = oracle.label(instances, actions)
+        classes = classify(task, instances, labels, key_fourth_class)
+        keep = screener.offer(classes)
+        if keep.size:
+            parts.append(TrajectoryDataset(task, instances[keep], labels.lengths[keep],
+                                           labels.returns[keep], labels.rewards[keep],
+                                           labels.hidden[keep], actions[keep], states[keep, -1],
+                                           classes[keep]))
+        if progress is not None:
+            progress(screener.kept, screener.examined)
+    seconds = time.perf_counter() - start
+    return _concat(task, parts, {"seed": seed, "generator": "random_policy_screening",
+                                 "draws": screener.examined, "seconds": seconds,
+                                 "key_fourth_class": key_fourth_class, "batch": batch})
+
+
+def screen_pool(task: str, trajectories: list, n_target: int | None = None,
+                meta: dict | None = None) -> TrajectoryDataset:
+    """Screen a pool of (states (L + 1, d), actions (L, m), terminated) trajectories, in order.
+
+    `n_target` defaults to the pool size (the class limit is p * n_target)."""
+    check_task(task)
+    n_target = len(trajectories) if n_target is None else n_target
+    oracle = make_oracle(task)
+    horizon = max(len(a) for _, a, _ in trajectories)
+    n = len(trajectories)
+    d = trajectories[0][0].shape[1]
+    m = trajectories[0][1].shape[1]
+    states = np.zeros((n, horizon, d), np.float32)
+    actions = np.zeros((n, horizon, m), np.float32)
+    final = np.zeros((n, d), np.float32)
+    lengths = np.zeros(n, np.int64)
+    for i, (s, a, _) in enumerate(trajectories):
+        lengths[i] = len(a)
+        states[i, : len(a)] = s[:-1]
+        actions[i, : len(a)] = a
+        final[i] = s[-1]
+    labels = oracle.label(states, lengths=lengths)
+    classes = classify(task, states, labels)
+    screener = Screener(screening_spec(task), n_target)
+    keep = screener.offer(classes)
+    meta = dict(meta or {}, generator="pool_screening", draws=screener.examined, pool=n)
+    return TrajectoryDataset(task, states[keep], lengths[keep], labels.returns[keep],
+                             labels.rewards[keep], labels.hidden[keep], actions[keep], final[keep],
+                             classes[keep], meta)
+
+
+def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | None = None,
+                        policy: str = "scripted") -> TrajectoryDataset:
+    """Roll out a pool of Lunar Lander episodes with `policy` and screen it (limit 0.2)."""
+    from ..tasks.lunar_lander import rollout_lunar_lander
+
+    start = time.perf_counter()
+    pool = rollout_lunar_lander(pool_size, seed=seed, policy=policy)
+    ds = screen_pool("lunar_lander", pool, n_target, {"seed": seed, "policy": policy})
+    ds.meta["seconds"] = time.perf_counter() - start
+    return ds
+
+
+def generate_screened(task: str, n_target: int = 5000, seed: int = 0, **kwargs) -> TrajectoryDataset:
+    """The screened dataset of any task (navigation: random policy; lunar_lander: scripted pool
+    of `pool_size` episodes, default 2 * n_target)."""
+    check_task(task)
+    if task == "lunar_lander":
+        pool_size = kwargs.pop("pool_size", 2 * n_target)
+        return screen_lunar_lander(pool_size=pool_size, seed=seed, n_target=n_target, **kwargs)
+    kwargs.pop("pool_size", None)
+    return screen_navigation(task, n_target=n_target, seed=seed, **kwargs)
+
+
+def _concat(task: str, parts: list, meta: dict) -> TrajectoryDataset:
+    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    return TrajectoryDataset(task, cat("states"), cat("lengths"), cat("returns"), cat("rewards"),
+                             cat("hidden"), cat("actions"), cat("final_states"), cat("classes"),
+                             meta)

@@ -1,0 +1,66 @@
+"""`TrajectoryDataset`: a batch of labelled trajectories (MIL bags) held in padded arrays."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class TrajectoryDataset:
+    """n trajectories padded to length L (padding is zero; `lengths` says what is real).
+
+    states (n, L, d) float32: the instances s_0..s_{len-1}; final_states (n, d) float32: the
+    observation s_len after the last action (None for toy bags); actions (n, L) int64 or
+    (n, L, m) float32, or None; returns (n,) float64 (the labels); rewards (n, L) float64 and
+    hidden (n, L, k) float64: the oracle's r_t and h_{t+1} (evaluation only); classes (n,) int64
+    screening class ids or None; meta: seed, draws, timing and other facts of generation.
+    """
+
+    task: str
+    states: np.ndarray
+    lengths: np.ndarray
+    returns: np.ndarray
+    rewards: np.ndarray
+    hidden: np.ndarray
+    actions: np.ndarray | None = None
+    final_states: np.ndarray | None = None
+    classes: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.states.shape[0])
+
+    @property
+    def state_size(self) -> int:
+        return int(self.states.shape[2])
+
+    def subset(self, index: np.ndarray) -> "TrajectoryDataset":
+        """The trajectories at `index` (an int array or bool mask), in that order."""
+        pick = lambda a: None if a is None else a[index]  # noqa: E731
+        return TrajectoryDataset(self.task, self.states[index], self.lengths[index],
+                                 self.returns[index], self.rewards[index], self.hidden[index],
+                                 pick(self.actions), pick(self.final_states), pick(self.classes),
+                                 dict(self.meta))
+
+    def save(self, path: str | Path) -> Path:
+        """Write an .npz (arrays) with the task and meta as JSON inside."""
+        path = Path(path)
+        arrays = {k: getattr(self, k) for k in ("states", "lengths", "returns", "rewards", "hidden",
+                                                "actions", "final_states", "classes")
+                  if getattr(self, k) is not None}
+        header = json.dumps({"task": self.task, "meta": self.meta})
+        np.savez_compressed(path, _header=np.array(header), **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrajectoryDataset":
+        with np.load(Path(path), allow_pickle=False) as z:
+            header = json.loads(str(z["_header"]))
+            get = lambda k: z[k] if k in z.files else None  # noqa: E731
+            return cls(header["task"], z["states"], z["lengths"], z["returns"], z["rewards"],
+                       z["hidden"], get("actions"), get("final_states"), get("classes"),
+                       header["meta"])

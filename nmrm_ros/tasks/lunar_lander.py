@@ -1,0 +1,133 @@
+"""The modified Lunar Lander task (paper App. D.1): gymnasium's continuous Lunar Lander (box2d)
+with the native reward discarded and T = 500.
+
+Landing, coming to rest or touching the ground with the body do not end the episode (the task
+asks the lander to take off again); it ends early only when the lander leaves the screen
+(|x| >= 1). State (8,) float32 `[x, y, vx, vy, angle, angular_velocity, left_contact,
+right_contact]`; action (2,) in [-1, 1]: main and side engine throttles.
+
+`ScriptedLanderController` is a goal-directed policy (land, wait on the pad, take off, hover) with
+randomised timing and noise, used to build the trajectory pool of the screened dataset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium.envs.box2d.lunar_lander import LunarLander
+
+EPISODE_LENGTH = 500
+STATE_SIZE = 8
+
+
+class RewardlessLunarLander(LunarLander):
+    """Continuous Lunar Lander with reward 0, no termination on landing/rest/crash, and a
+    truncation at `episode_length` steps."""
+
+    def __init__(self, episode_length: int = EPISODE_LENGTH, **kwargs) -> None:
+        kwargs.setdefault("continuous", True)
+        super().__init__(**kwargs)
+        self.episode_length = int(episode_length)
+        self.task = "lunar_lander"
+        self._t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self._t = 0
+        obs, info = super().reset(seed=seed, options=options)  # takes one no-op step itself
+        self._t = 0
+        info = dict(info, t=0)
+        return obs, info
+
+    def step(self, action):
+        if self._t >= self.episode_length:
+            raise RuntimeError("episode is over (truncated); call reset()")
+        action = np.asarray(action, dtype=np.float32)
+        if action.shape != (2,) or not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be 2 finite floats, got {action!r}")
+        obs, _native_reward, _native_terminated, _, info = super().step(np.clip(action, -1, 1))
+        self._t += 1
+        terminated = bool(abs(obs[0]) >= 1.0)
+        truncated = self._t >= self.episode_length
+        return obs, 0.0, terminated, truncated, dict(info, t=self._t)
+
+
+class ScriptedLanderController:
+    """A PD controller that lands on the pad, stays `wait` steps, takes off and hovers at
+    `hover_y`. Timing, targets and action noise are drawn from `rng` per episode, so a pool of
+    episodes covers many of the screening classes (never landing, short stays, long stays, with
+    and without hovering)."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.reset()
+
+    def reset(self) -> None:
+        r = self.rng
+        # wait on the pad: not at all, shortly, past the 50-step target, or for ever
+        self.wait = int(r.choice([0, r.integers(1, 50), r.integers(50, 120), 10**6]))
+        self.land = bool(r.random() < 0.85)
+        self.hover_y = float(r.uniform(0.4, 1.6))
+        self.hover_x = float(r.uniform(-0.9, 0.9))
+        self.noise = float(r.choice([0.0, 0.2, 0.5]))
+        self.pad_steps = 0
+        self.phase = "descend" if self.land else "hover"
+
+    def __call__(self, s: np.ndarray) -> np.ndarray:
+        x, y, vx, vy, ang, vang, cl, cr = (float(v) for v in s)
+        on_ground = cl > 0.5 and cr > 0.5
+        if self.phase == "descend" and on_ground:
+            self.phase = "rest"
+        if self.phase == "rest":
+            self.pad_steps += 1
+            if self.pad_steps >= self.wait:
+                self.phase = "hover"
+        if self.phase == "descend":
+            tx, ty = 0.0, 0.0
+        elif self.phase == "rest":
+            return np.array([-1.0, 0.0], dtype=np.float32)
+        else:
+            tx, ty = self.hover_x, self.hover_y
+        angle_target = np.clip((x - tx) * 0.5 + vx * 1.0, -0.4, 0.4)
+        angle_todo = (angle_target - ang) * 0.5 - vang * 1.0
+        if self.phase == "descend":
+            hover_todo = (0.55 * abs(x) - y) * 0.5 - vy * 0.5
+            if cl > 0.5 or cr > 0.5:
+                angle_todo, hover_todo = 0.0, -vy * 0.5
+        else:
+            hover_todo = (ty - y) * 0.5 - vy * 0.5
+        a = np.array([hover_todo * 20 - 1, -angle_todo * 20], dtype=np.float64)
+        if self.noise:
+            a += self.rng.normal(0.0, self.noise, size=2)
+        return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+
+def rollout_lunar_lander(n: int, seed: int, policy: str = "scripted",
+                         episode_length: int = EPISODE_LENGTH):
+    """Roll out `n` episodes sequentially (box2d cannot be batched).
+
+    Episode i resets with seed `seed + i`; the policy's randomness comes from
+    `np.random.default_rng(seed)`. Returns a list of (states (L + 1, 8) float32,
+    actions (L, 2) float32, terminated bool), L <= episode_length.
+    """
+    rng = np.random.default_rng(seed)
+    env = RewardlessLunarLander(episode_length=episode_length)
+    controller = ScriptedLanderController(rng) if policy == "scripted" else None
+    if policy not in ("scripted", "random"):
+        raise ValueError(f"unknown policy {policy!r}: use 'scripted' or 'random'")
+    out = []
+    for i in range(n):
+        obs, _ = env.reset(seed=seed + i)
+        if controller is not None:
+            controller.reset()
+        states, actions = [obs], []
+        terminated = False
+        for _ in range(episode_length):
+            a = controller(obs) if controller is not None else rng.uniform(-1, 1, 2).astype(np.float32)
+            obs, _, terminated, truncated, _ = env.step(a)
+            states.append(obs)
+            actions.append(a)
+            if terminated or truncated:
+                break
+        out.append((np.asarray(states, dtype=np.float32), np.asarray(actions, dtype=np.float32),
+                    bool(terminated)))
+    env.close()
+    return out

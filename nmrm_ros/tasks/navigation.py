@@ -1,0 +1,150 @@
+"""The 2D navigation simulator shared by the Timer, Moving, Key and Charger tasks (paper App. D.1).
+
+State `s_t = [x, y]` in `[0, 1]^2` (float32). Five discrete actions move the agent by 0.1:
+0 = no-op, 1 = up (+y), 2 = down (-y), 3 = left (-x), 4 = right (+x). The motion vector is
+corrupted by zero-mean Gaussian noise (std 0.02 per axis; also for no-op) and the result is clipped
+into the square. Episodes last T = 100 steps and start in one of two spawn zones chosen with
+probability 1/2. The environment gives no reward: rewards come from an oracle or a learnt model.
+
+The dynamics are written once, vectorised over a batch of agents (`NavigationSimulator`); the
+gymnasium env is that simulator with a batch of one. All arithmetic is float64 and each new
+position is stored as float32, so what the env returns is exactly what a message carries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+EPISODE_LENGTH = 100
+STEP_SIZE = 0.1
+MOTION_NOISE_STD = 0.02
+N_ACTIONS = 5
+ACTION_NAMES = ("noop", "up", "down", "left", "right")
+#: Unit motion of each discrete action, (5, 2).
+ACTION_VECTORS = np.array([[0, 0], [0, 1], [0, -1], [-1, 0], [1, 0]], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Zone:
+    """An axis-aligned rectangle, bounds inclusive."""
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+
+    def contains(self, states: np.ndarray) -> np.ndarray:
+        """states: (..., 2) -> bool (...)."""
+        x, y = states[..., 0], states[..., 1]
+        return (x >= self.x_min) & (x <= self.x_max) & (y >= self.y_min) & (y <= self.y_max)
+
+
+SPAWN_ZONES = (Zone(0.1, 0.2, 0.4, 0.6), Zone(0.8, 0.9, 0.4, 0.6))
+TREASURE_ZONE = Zone(0.4, 0.6, 0.7, 0.9)
+KEY_ZONE = Zone(0.4, 0.6, 0.1, 0.3)
+#: Charger task: the agent charges wherever y <= 0.3.
+CHARGE_Y_MAX = 0.3
+
+
+class NavigationSimulator:
+    """Vectorised dynamics of `n` independent agents. All randomness comes from `rng`.
+
+    Random draws per call, in this order: `reset` draws the spawn zone choice (n) then x (n) then
+    y (n); `step` draws the motion noise (n, 2).
+    """
+
+    def __init__(self, n: int, rng: np.random.Generator, continuous: bool = False) -> None:
+        self.n = int(n)
+        self.rng = rng
+        self.continuous = continuous
+        self.positions = np.zeros((self.n, 2), dtype=np.float32)
+
+    def reset(self) -> np.ndarray:
+        """Spawn every agent; returns positions (n, 2) float32."""
+        right = self.rng.random(self.n) < 0.5
+        x = self.rng.uniform(0.1, 0.2, self.n) + np.where(right, 0.7, 0.0)
+        y = self.rng.uniform(0.4, 0.6, self.n)
+        self.positions = np.stack([x, y], axis=1).astype(np.float32)
+        return self.positions.copy()
+
+    def motion(self, actions: np.ndarray) -> np.ndarray:
+        """Noise-free motion (n, 2) float64 for discrete action indices (n,) or continuous
+        actions (n, 2) in [-1, 1] (scaled by 0.1)."""
+        if self.continuous:
+            a = np.asarray(actions, dtype=np.float64).reshape(self.n, 2)
+            return np.clip(a, -1.0, 1.0) * STEP_SIZE
+        a = np.asarray(actions).reshape(self.n)
+        if a.dtype.kind == "f":
+            if not np.all(np.isfinite(a)) or not np.all(a == np.round(a)):
+                raise ValueError(f"discrete actions must be whole numbers in 0..4, got {a}")
+            a = a.astype(np.int64)
+        if np.any((a < 0) | (a >= N_ACTIONS)):
+            raise ValueError(f"discrete actions must be in 0..4, got {a}")
+        return ACTION_VECTORS[a] * STEP_SIZE
+
+    def step(self, actions: np.ndarray) -> np.ndarray:
+        """Move every agent; returns the new positions (n, 2) float32."""
+        move = self.motion(actions)
+        noise = self.rng.normal(0.0, MOTION_NOISE_STD, size=(self.n, 2))
+        new = np.clip(self.positions.astype(np.float64) + move + noise, 0.0, 1.0)
+        self.positions = new.astype(np.float32)
+        return self.positions.copy()
+
+
+def rollout_random(n: int, rng: np.random.Generator, length: int = EPISODE_LENGTH,
+                   continuous: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Roll out `n` uniform-random-policy trajectories at once.
+
+    Returns states (n, length + 1, 2) float32 (s_0..s_T; s_T is the final observation, on which
+    no action is taken) and actions (n, length) int64 (or (n, length, 2) float32 if continuous).
+    """
+    sim = NavigationSimulator(n, rng, continuous=continuous)
+    states = np.empty((n, length + 1, 2), dtype=np.float32)
+    if continuous:
+        actions = rng.uniform(-1.0, 1.0, size=(n, length, 2)).astype(np.float32)
+    else:
+        actions = rng.integers(0, N_ACTIONS, size=(n, length))
+    states[:, 0] = sim.reset()
+    for t in range(length):
+        states[:, t + 1] = sim.step(actions[:, t])
+    return states, actions
+
+
+class NavigationEnv(gym.Env):
+    """Rewardless gymnasium env of the 2D navigation tasks (reward is always 0.0).
+
+    `task` only labels the env (the four tasks share the dynamics); `truncated` is set on step T.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, task: str = "navigation", continuous: bool = False,
+                 episode_length: int = EPISODE_LENGTH) -> None:
+        self.task = task
+        self.continuous = continuous
+        self.episode_length = int(episode_length)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(2,), dtype=np.float32)
+        if continuous:
+            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        else:
+            self.action_space = gym.spaces.Discrete(N_ACTIONS)
+        self._sim: NavigationSimulator | None = None
+        self._t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._sim = NavigationSimulator(1, self.np_random, continuous=self.continuous)
+        self._t = 0
+        return self._sim.reset()[0], {"t": 0}
+
+    def step(self, action):
+        if self._sim is None:
+            raise RuntimeError("call reset() before step()")
+        if self._t >= self.episode_length:
+            raise RuntimeError("episode is over (truncated); call reset()")
+        obs = self._sim.step(np.asarray(action)[None])[0]
+        self._t += 1
+        return obs, 0.0, False, self._t >= self.episode_length, {"t": self._t}
