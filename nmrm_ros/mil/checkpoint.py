@@ -1,0 +1,85 @@
+"""Checkpoints: a plain state dict (`<name>.pt`, loaded with weights_only=True) beside JSON
+metadata (`<name>.json`: architecture and sizes, task, normalisation, training config, seed,
+metrics, package version). A checkpoint that does not match what the caller asks for, or whose
+weights do not match its own metadata, is refused with a clear error."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from .. import __version__
+from .models import ModelConfig, MILRewardModel, build_model
+
+FORMAT = "nmrm_ros.mil_checkpoint/1"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, malformed, or does not match what was asked for."""
+
+
+def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
+    """(weights .pt, metadata .json) for a path given with or without either suffix."""
+    path = Path(path)
+    stem = path.with_suffix("") if path.suffix in (".pt", ".json") else path
+    return stem.with_suffix(".pt"), stem.with_suffix(".json")
+
+
+def save_checkpoint(model: MILRewardModel, path: str | Path, task: str, **meta) -> Path:
+    """Write `<path>.pt` and `<path>.json`; returns the .pt path."""
+    weights, info = checkpoint_paths(path)
+    weights.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(model.state_dict(), weights)
+    record = {
+        "format": FORMAT,
+        "package_version": __version__,
+        "task": task,
+        "model": model.config.to_dict(),
+        "normalisation": {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
+                          "return_scale": float(model.return_scale)},
+        **meta,
+    }
+    info.write_text(json.dumps(record, indent=2))
+    return weights
+
+
+def load_checkpoint(path: str | Path, architecture: str | None = None,
+                    input_size: int | None = None, task: str | None = None) -> tuple[MILRewardModel, dict]:
+    """Rebuild the model from the metadata and load the weights (eval mode).
+
+    Raises CheckpointError if a file is missing or malformed, or if the checkpoint's architecture,
+    input size or task differs from the one asked for.
+    """
+    weights, info = checkpoint_paths(path)
+    for p in (weights, info):
+        if not p.is_file():
+            raise CheckpointError(f"checkpoint file missing: {p}")
+    try:
+        record = json.loads(info.read_text())
+        config = ModelConfig.from_dict(record["model"])
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise CheckpointError(f"malformed checkpoint metadata {info}: {exc}") from None
+    if record.get("format") != FORMAT:
+        raise CheckpointError(f"{info}: unknown checkpoint format {record.get('format')!r}")
+    if architecture is not None and config.architecture != architecture:
+        raise CheckpointError(f"checkpoint {weights} is a {config.architecture} model, "
+                              f"not the requested {architecture}")
+    if input_size is not None and config.input_size != input_size:
+        raise CheckpointError(f"checkpoint {weights} takes states of size {config.input_size}, "
+                              f"not {input_size}")
+    if task is not None and record.get("task") != task:
+        raise CheckpointError(f"checkpoint {weights} was trained on task {record.get('task')!r}, "
+                              f"not {task!r}")
+    try:
+        state = torch.load(weights, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unpickling/format failure is a bad checkpoint
+        raise CheckpointError(f"cannot read checkpoint weights {weights}: {exc}") from None
+    model = build_model(config)
+    try:
+        model.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        raise CheckpointError(f"checkpoint weights {weights} do not match their metadata "
+                              f"({config.architecture}, input {config.input_size}): {exc}") from None
+    return model.eval(), record

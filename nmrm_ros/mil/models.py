@@ -1,0 +1,231 @@
+"""The four MIL reward-model architectures of the paper (Sec. 3.2, App. C.2, D.3, D.4).
+
+Every model maps a batch of padded bags (trajectories) to per-step rewards, per-step hidden
+states and bag returns:
+
+    out = model(x, lengths)      x: (B, T, d) float32 instances, lengths: (B,) int64
+    out.returns (B,)  out.rewards (B, T)  out.hidden (B, T, k)   (zero beyond each length)
+
+`hidden[:, t]` is h'_{t+1}, the LSTM hidden state after instance t (k = 0 for the Instance Space
+NN). Inputs are normalised inside the model ((x - input_shift) / input_scale, buffers set from
+the training split), and outputs are in the units of the labels (`return_scale` multiplies the
+network's output; Lunar Lander trains on returns / 100).
+
+Architectures:
+- InstanceSpaceNN (Markovian baseline, mi-Net): r_t = HN(FE(x_t)).
+- EmbeddingSpaceLSTM: g_t = HN(h'_{t+1}) is the partial return after t + 1 instances; the return
+  is g at the last instance; rewards are r_t = g_t - g_{t-1} with g_{-1} = 0 (the paper's
+  post-hoc g'_0 = 0 rule, in 0-based steps).
+- InstanceSpaceLSTM: r_t = HN(h'_{t+1}).
+- CSCInstanceSpaceLSTM: r_t = HN([FE(x_t), h'_{t+1}]) (concatenated skip connection).
+The LSTM has a learnable initial state (h'_0, c'_0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+ARCHITECTURES = ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
+ARCHITECTURE_NAMES = {
+    "instance_nn": "Instance Space NN",
+    "embedding_lstm": "Embedding Space LSTM",
+    "instance_lstm": "Instance Space LSTM",
+    "csc_lstm": "CSC Instance Space LSTM",
+}
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Everything needed to rebuild a model (stored in checkpoint metadata).
+
+    fe_sizes: feature extractor layer widths (FC + ReLU + dropout each); head_sizes: head hidden
+    widths (FC + ReLU + dropout each) before the final FC to 1; output_activation: "none" or
+    "leaky_relu" (slope 1e-6, Lunar Lander); hidden_size: LSTM state size (paper: 2).
+    """
+
+    architecture: str
+    input_size: int
+    fe_sizes: tuple = (64, 32, 32)
+    head_sizes: tuple = (32, 16)
+    hidden_size: int = 2
+    dropout: float = 0.0
+    output_activation: str = "none"
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["fe_sizes"], d["head_sizes"] = list(self.fe_sizes), list(self.head_sizes)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        d = dict(d)
+        d["fe_sizes"], d["head_sizes"] = tuple(d["fe_sizes"]), tuple(d["head_sizes"])
+        return cls(**d)
+
+
+#: Layer sizes per task family (paper tables). Toy: FE 2->2, HN 2->1, no dropout.
+FAMILY_SIZES = {
+    "toy": {"fe_sizes": (2,), "head_sizes": (), "output_activation": "none"},
+    "navigation": {"fe_sizes": (64, 32, 32), "head_sizes": (32, 16), "output_activation": "none"},
+    "lunar_lander": {"fe_sizes": (128, 64, 64), "head_sizes": (64, 32),
+                     "output_activation": "leaky_relu"},
+}
+
+
+class MILOutput(NamedTuple):
+    returns: torch.Tensor  # (B,)
+    rewards: torch.Tensor  # (B, T)
+    hidden: torch.Tensor  # (B, T, k)
+
+
+def _mlp(sizes: list, dropout: float, final_linear: bool) -> nn.Sequential:
+    """FC + ReLU + Dropout for each consecutive pair of sizes; the last one plain FC if
+    final_linear."""
+    layers: list = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        layers.append(nn.Linear(a, b))
+        if final_linear and i == len(sizes) - 2:
+            break
+        layers.append(nn.ReLU())
+        if dropout > 0:
+            layers.append(nn.Dropout(dropout))
+    return nn.Sequential(*layers)
+
+
+class MILRewardModel(nn.Module):
+    """Base class: normalisation buffers, feature extractor, head, and the bag/step API."""
+
+    uses_lstm = True
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.register_buffer("input_shift", torch.zeros(config.input_size))
+        self.register_buffer("input_scale", torch.ones(config.input_size))
+        self.register_buffer("return_scale", torch.ones(()))
+        self.feature_extractor = _mlp([config.input_size, *config.fe_sizes], config.dropout, False)
+        self.feature_size = config.fe_sizes[-1]
+        if self.uses_lstm:
+            self.lstm = nn.LSTM(self.feature_size, config.hidden_size, batch_first=True)
+            self.h0 = nn.Parameter(torch.zeros(config.hidden_size))
+            self.c0 = nn.Parameter(torch.zeros(config.hidden_size))
+        self.head = _mlp([self.head_input_size, *config.head_sizes, 1], config.dropout, True)
+        self.output_activation = (nn.LeakyReLU(1e-6) if config.output_activation == "leaky_relu"
+                                  else nn.Identity())
+
+    @property
+    def head_input_size(self) -> int:
+        return self.config.hidden_size
+
+    @property
+    def hidden_size(self) -> int:
+        return self.config.hidden_size if self.uses_lstm else 0
+
+    def set_normalisation(self, shift: torch.Tensor, scale: torch.Tensor,
+                          return_scale: float = 1.0) -> None:
+        """Set the input normalisation (computed on the training split) and the label scale."""
+        self.input_shift.copy_(torch.as_tensor(shift, dtype=torch.float32))
+        self.input_scale.copy_(torch.as_tensor(scale, dtype=torch.float32))
+        self.return_scale.fill_(float(return_scale))
+
+    def _features(self, x: torch.Tensor) -> torch.Tensor:
+        return self.feature_extractor((x - self.input_shift) / self.input_scale)
+
+    def _head(self, z: torch.Tensor) -> torch.Tensor:
+        return self.output_activation(self.head(z)).squeeze(-1) * self.return_scale
+
+    def _lstm(self, f: torch.Tensor) -> torch.Tensor:
+        b = f.shape[0]
+        h0 = self.h0.expand(1, b, -1).contiguous()
+        c0 = self.c0.expand(1, b, -1).contiguous()
+        out, _ = self.lstm(f, (h0, c0))
+        return out
+
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
+        raise NotImplementedError
+
+
+def _mask(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    return (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).to(x.dtype)
+
+
+class InstanceSpaceNN(MILRewardModel):
+    uses_lstm = False
+
+    @property
+    def head_input_size(self) -> int:
+        return self.feature_size
+
+    def forward(self, x, lengths):
+        mask = _mask(x, lengths)
+        rewards = self._head(self._features(x)) * mask
+        return MILOutput(rewards.sum(1), rewards, x.new_zeros(x.shape[0], x.shape[1], 0))
+
+
+class EmbeddingSpaceLSTM(MILRewardModel):
+    def forward(self, x, lengths):
+        mask = _mask(x, lengths)
+        hidden = self._lstm(self._features(x))
+        partial = self._head(hidden)  # g_t, (B, T)
+        previous = torch.cat([partial.new_zeros(partial.shape[0], 1), partial[:, :-1]], dim=1)
+        rewards = (partial - previous) * mask
+        last = (lengths - 1).clamp(min=0)
+        returns = partial.gather(1, last[:, None]).squeeze(1) * (lengths > 0).to(x.dtype)
+        return MILOutput(returns, rewards, hidden * mask[..., None])
+
+
+class InstanceSpaceLSTM(MILRewardModel):
+    def forward(self, x, lengths):
+        mask = _mask(x, lengths)
+        hidden = self._lstm(self._features(x))
+        rewards = self._head(hidden) * mask
+        return MILOutput(rewards.sum(1), rewards, hidden * mask[..., None])
+
+
+class CSCInstanceSpaceLSTM(MILRewardModel):
+    @property
+    def head_input_size(self) -> int:
+        return self.feature_size + self.config.hidden_size
+
+    def forward(self, x, lengths):
+        mask = _mask(x, lengths)
+        features = self._features(x)
+        hidden = self._lstm(features)
+        rewards = self._head(torch.cat([features, hidden], dim=-1)) * mask
+        return MILOutput(rewards.sum(1), rewards, hidden * mask[..., None])
+
+
+MODEL_CLASSES = {
+    "instance_nn": InstanceSpaceNN,
+    "embedding_lstm": EmbeddingSpaceLSTM,
+    "instance_lstm": InstanceSpaceLSTM,
+    "csc_lstm": CSCInstanceSpaceLSTM,
+}
+
+
+def family_of(task: str) -> str:
+    """The layer-size family of a task or toy dataset."""
+    if task == "lunar_lander":
+        return "lunar_lander"
+    if task in ("timer", "moving", "key", "charger"):
+        return "navigation"
+    return "toy"
+
+
+def model_config(architecture: str, task: str, input_size: int, dropout: float = 0.0,
+                 hidden_size: int = 2) -> ModelConfig:
+    """The paper's configuration of `architecture` for `task`'s family."""
+    if architecture not in ARCHITECTURES:
+        raise ValueError(f"unknown architecture {architecture!r}; known: {', '.join(ARCHITECTURES)}")
+    return ModelConfig(architecture=architecture, input_size=input_size, hidden_size=hidden_size,
+                       dropout=dropout, **FAMILY_SIZES[family_of(task)])
+
+
+def build_model(config: ModelConfig) -> MILRewardModel:
+    if config.architecture not in MODEL_CLASSES:
+        raise ValueError(f"unknown architecture {config.architecture!r}; known: {', '.join(ARCHITECTURES)}")
+    return MODEL_CLASSES[config.architecture](config)

@@ -1,0 +1,96 @@
+"""Toy datasets and screened trajectory datasets (paper App. C, D.2)."""
+
+import numpy as np
+import pytest
+
+from nmrm_ros.datasets import (TrajectoryDataset, classify, generate_screened, make_toy_dataset,
+                               screen_pool, screening_spec)
+from nmrm_ros.oracles import make_oracle
+from nmrm_ros.tasks.lunar_lander import rollout_lunar_lander
+
+
+def test_toy_bag_sizes_and_labels():
+    for name in ("toggle_switch", "push_switch", "dial"):
+        ds = make_toy_dataset(name, n_bags=500, seed=1)
+        assert len(ds) == 500 and ds.state_size == 2
+        assert ds.lengths.min() == 10 and ds.lengths.max() == 20
+        assert np.allclose(ds.rewards.sum(axis=1), ds.returns)
+        pad = np.arange(20)[None] >= ds.lengths[:, None]
+        assert np.all(ds.states[pad] == 0) and np.all(ds.rewards[pad] == 0)
+
+
+def test_push_switch_semantics():
+    # presses at t = 1 and t = 3: the switch is on for t = 1, 2 only
+    states = np.array([[[0, 1], [1, 2], [0, 4], [1, 8], [0, 16]]], np.float32)
+    labels = make_oracle("push_switch").label(states)
+    assert labels.rewards[0].tolist() == [0, 2, 4, 0, 0]
+    assert labels.hidden[0, :, 0].tolist() == [0, 1, 1, 0, 0]
+
+
+def test_toggle_and_dial_semantics():
+    toggle = make_oracle("toggle_switch").label(np.array([[[1, 0.5], [0, 0.7], [1, 0.25]]], np.float32))
+    assert toggle.returns[0] == 0.75
+    dial = make_oracle("dial").label(np.array([[[0.5, 2.0], [-0.25, 4.0], [0.0, 1.0]]], np.float32))
+    # d = 0.5, 0.25, 0.25 -> rewards 1.0, 1.0, 0.25
+    assert dial.rewards[0].tolist() == [1.0, 1.0, 0.25]
+
+
+def test_toy_same_seed_same_dataset():
+    a, b = make_toy_dataset("dial", 100, seed=3), make_toy_dataset("dial", 100, seed=3)
+    assert a.states.tobytes() == b.states.tobytes() and a.returns.tobytes() == b.returns.tobytes()
+    with pytest.raises(ValueError, match="unknown toy"):
+        make_toy_dataset("slider")
+
+
+def _class_limits_respected(ds, key_fourth_class=False):
+    spec = screening_spec(ds.task, key_fourth_class)
+    classes, counts = np.unique(ds.classes, return_counts=True)
+    for c, k in zip(classes.tolist(), counts.tolist()):
+        assert k <= spec.max_count(c, len(ds)), (ds.task, c, k)
+
+
+@pytest.mark.parametrize("task,n", [("timer", 1000), ("moving", 400), ("key", 400),
+                                    ("charger", 1000)])
+def test_screened_dataset_limits_and_labels(task, n):
+    ds = generate_screened(task, n, seed=5, batch=20000)
+    assert len(ds) == n and ds.states.shape == (n, 100, 2)
+    _class_limits_respected(ds)
+    # the stored classes and labels are those of the stored trajectories
+    labels = make_oracle(task).label(ds.states, ds.actions)
+    np.testing.assert_array_equal(labels.returns, ds.returns)
+    np.testing.assert_array_equal(classify(task, ds.states, labels), ds.classes)
+    assert ds.meta["draws"] >= n and ds.meta["seed"] == 5
+
+
+def test_screening_same_seed_same_dataset():
+    a = generate_screened("key", 300, seed=11, batch=5000)
+    b = generate_screened("key", 300, seed=11, batch=5000)
+    c = generate_screened("key", 300, seed=12, batch=5000)
+    assert a.states.tobytes() == b.states.tobytes()
+    assert a.actions.tobytes() == b.actions.tobytes()
+    assert a.states.tobytes() != c.states.tobytes()
+
+
+def test_key_fourth_class():
+    ds = generate_screened("key", 500, seed=2, key_fourth_class=True)
+    assert set(np.unique(ds.classes).tolist()) == {0, 1, 2, 3}
+    _class_limits_respected(ds, key_fourth_class=True)
+    # class 3: treasure visited but never with the key, so its return is 0
+    assert np.all(ds.returns[ds.classes == 3] == 0)
+    assert np.all(ds.returns[ds.classes == 2] > 0)
+
+
+def test_lunar_lander_pool_screening():
+    pool = rollout_lunar_lander(40, seed=0)
+    ds = screen_pool("lunar_lander", pool, n_target=20)
+    assert len(ds) <= 20 and ds.states.shape[1:] == (500, 8)
+    _class_limits_respected(ds)
+    assert np.all(ds.returns >= 0)
+
+
+def test_dataset_save_load_round_trip(tmp_path):
+    ds = generate_screened("moving", 200, seed=1)
+    back = TrajectoryDataset.load(ds.save(tmp_path / "moving.npz"))
+    assert back.task == "moving" and back.meta == ds.meta
+    for k in ("states", "actions", "returns", "rewards", "hidden", "lengths", "classes", "final_states"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(ds, k))
