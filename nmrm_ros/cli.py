@@ -98,6 +98,152 @@ def dataset_toy(
         typer.echo(f"wrote {ds.save(out)}")
 
 
+@app.command()
+def demo(
+    task: str = typer.Option("key", help="navigation task"),
+    n: int = typer.Option(2000, help="screened trajectories to generate"),
+    epochs: int = typer.Option(100, help="max training epochs"),
+    seed: int = typer.Option(0, help="seed of data, split and weights"),
+    out: Path = typer.Option(Path("runs/demo"), help="where the checkpoint goes"),
+) -> None:
+    """The main job on a small default task: screened data -> MIL training -> online reward.
+
+    1. generate a screened dataset with the task's oracle labels (random policy);
+    2. train a CSC Instance Space LSTM on the returns and evaluate it on the test split;
+    3. run the trained model online, one step at a time, on test trajectories and compare its
+       rewards with the oracle's.
+    """
+    import time
+
+    import numpy as np
+
+    from .datasets import generate_screened
+    from .mil import OnlineRewardModel, load_train_config
+    from .mil.data import split_indices
+    from .mil.pipeline import train_and_evaluate
+    from .tasks import NAVIGATION_TASKS
+
+    if task not in NAVIGATION_TASKS:
+        raise typer.BadParameter(f"the demo runs a navigation task {NAVIGATION_TASKS}, not {task!r}")
+    typer.echo(f"[1/3] screening {n} {task} trajectories (seed {seed})")
+    ds = generate_screened(task, n, seed=seed)
+    typer.echo("      " + _dataset_summary(ds).replace("\n", "\n      "))
+    cfg = load_train_config(task, max_epochs=epochs, seed=seed)
+    typer.echo(f"[2/3] training csc_lstm (lr {cfg.lr}, batch {cfg.batch_size}, <= {epochs} epochs)")
+    run = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=seed, out=out,
+                             data_source=f"screened:{task}:n={n}:seed={seed}")
+    m = run.test_metrics
+    typer.echo(f"      best epoch {run.train.best_epoch}, {run.train.seconds:.1f} s; test return MSE "
+               f"{m['return_mse']:.4f} (return variance {ds.returns.var():.3f}), reward MSE "
+               f"{m['reward_mse']:.5f}; checkpoint {run.checkpoint}")
+    typer.echo("[3/3] online reward model, one step at a time, on test trajectories of each class")
+    online = OnlineRewardModel(run.model)
+    test = ds.subset(split_indices(len(ds), seed)[2])
+    picks = [int(np.flatnonzero(test.classes == c)[0]) for c in np.unique(test.classes)][:6]
+    step_times = []
+    for i in picks:
+        online.reset()
+        predicted = []
+        for t in range(int(test.lengths[i])):
+            t0 = time.perf_counter()
+            r, _ = online.step(test.states[i, t])
+            step_times.append(time.perf_counter() - t0)
+            predicted.append(r)
+        err = np.mean((np.asarray(predicted) - test.rewards[i, : len(predicted)]) ** 2)
+        typer.echo(f"      class {int(test.classes[i])}: oracle return {test.returns[i]:7.3f}, "
+                   f"model return {sum(predicted):7.3f}, reward MSE {err:.5f}")
+    typer.echo(f"      online step: median {np.median(step_times) * 1e6:.0f} µs")
+
+
+def _load_or_generate(data: Path | None, task: str | None, n: int, seed: int):
+    """A dataset from an .npz file, or generated (screened task / toy) from task, n and seed."""
+    from .datasets import TOY_DATASETS, TrajectoryDataset, generate_screened, make_toy_dataset
+    from .tasks import check_task
+
+    if data is not None:
+        if not data.is_file():
+            raise typer.BadParameter(f"no dataset file {data}")
+        return TrajectoryDataset.load(data), str(data)
+    if task is None:
+        raise typer.BadParameter("give --data FILE or --task")
+    if task in TOY_DATASETS:
+        return make_toy_dataset(task, n, seed=seed), f"toy:{task}:n={n}:seed={seed}"
+    _bad_input(check_task, task)
+    return generate_screened(task, n, seed=seed), f"screened:{task}:n={n}:seed={seed}"
+
+
+@app.command()
+def train(
+    task: str = typer.Option(None, help="task or toy dataset to generate data for (if no --data)"),
+    data: Path = typer.Option(None, help="a dataset .npz (from `nmrm dataset ...`)"),
+    arch: str = typer.Option("csc_lstm", help="instance_nn | embedding_lstm | instance_lstm | csc_lstm"),
+    out: Path = typer.Option(Path("runs/model"), help="checkpoint path (writes OUT.pt and OUT.json)"),
+    n: int = typer.Option(5000, help="trajectories to generate (without --data)"),
+    data_seed: int = typer.Option(0, help="seed of the generated data"),
+    seed: int = typer.Option(0, help="seed of the weight initialisation and batch order"),
+    split_seed: int = typer.Option(0, help="seed of the 80/10/10 train/val/test split"),
+    epochs: int = typer.Option(None, help="override max_epochs"),
+    lr: float = typer.Option(None, help="override the learning rate"),
+    batch_size: int = typer.Option(None, help="override the batch size"),
+    config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)"),
+) -> None:
+    """Train a MIL reward model (early stopping on validation return MSE) and evaluate it."""
+    from .mil import ARCHITECTURES, load_train_config
+    from .mil.pipeline import train_and_evaluate
+
+    if arch not in ARCHITECTURES:
+        raise typer.BadParameter(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
+    ds, source = _load_or_generate(data, task, n, data_seed)
+    cfg = _bad_input(load_train_config, ds.task, config, max_epochs=epochs, lr=lr,
+                     batch_size=batch_size, seed=seed)
+    typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
+               f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}")
+    run = train_and_evaluate(ds, arch, cfg, split_seed=split_seed, out=out, data_source=source)
+    m = run.test_metrics
+    typer.echo(f"best epoch {run.train.best_epoch}/{run.train.epochs_run} in {run.train.seconds:.1f} s; "
+               f"test return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f} "
+               f"({m['bags']} bags)")
+    typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
+
+
+@app.command()
+def evaluate(
+    checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
+    data: Path = typer.Option(None, help="dataset .npz (default: regenerate the training data)"),
+    split: str = typer.Option("test", help="test | val | train | all (of the dataset)"),
+) -> None:
+    """Test-split return MSE and reward MSE of a checkpoint (the paper's table metrics)."""
+    from .datasets import TOY_DATASETS
+    from .mil import CheckpointError, evaluate as evaluate_model, load_checkpoint
+    from .mil.data import split_indices
+
+    try:
+        model, meta = load_checkpoint(checkpoint)
+    except CheckpointError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    if data is None:
+        source = meta.get("data", {}).get("source", "")
+        parts = source.split(":")
+        if len(parts) != 4 or parts[0] not in ("toy", "screened"):
+            raise typer.BadParameter(f"checkpoint data source {source!r} cannot be regenerated; give --data")
+        task, n, seed = parts[1], int(parts[2][2:]), int(parts[3][5:])
+        ds, _ = _load_or_generate(None, task, n, seed)
+        assert (task in TOY_DATASETS) == (parts[0] == "toy")
+    else:
+        ds, _ = _load_or_generate(data, None, 0, 0)
+    if ds.state_size != model.config.input_size:
+        raise typer.BadParameter(f"dataset states have size {ds.state_size}, the model takes "
+                                 f"{model.config.input_size}")
+    if split != "all":
+        names = ("train", "val", "test")
+        if split not in names:
+            raise typer.BadParameter(f"--split must be one of {names + ('all',)}")
+        ds = ds.subset(split_indices(len(ds), meta.get("split_seed", 0))[names.index(split)])
+    m = evaluate_model(model, ds)
+    typer.echo(f"{model.config.architecture} on {ds.task} ({split}, {m['bags']} bags): "
+               f"return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f}")
+
+
 def _bad_input(fn, *args, **kwargs):
     """Call fn; turn a ValueError (unknown task, bad size...) into a clean CLI error."""
     try:

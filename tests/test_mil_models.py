@@ -1,0 +1,124 @@
+"""MIL models: shapes, masking, online stepping = batched forward, checkpoints, normalisation."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from nmrm_ros.datasets import make_toy_dataset
+from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, build_model,
+                          load_checkpoint, load_train_config, model_config, save_checkpoint,
+                          train_model)
+from nmrm_ros.mil.data import normalisation, split_indices
+from nmrm_ros.mil.online import batched_reference
+
+
+def _model(arch, task="key", d=2, seed=0):
+    torch.manual_seed(seed)
+    model = build_model(model_config(arch, task, d, dropout=0.1))
+    # non-trivial normalisation and initial state so the test exercises them
+    model.set_normalisation(torch.full((d,), 0.3), torch.full((d,), 0.7), 1.0)
+    if model.uses_lstm:
+        with torch.no_grad():
+            model.h0.uniform_(-0.5, 0.5)
+            model.c0.uniform_(-0.5, 0.5)
+    return model.eval()
+
+
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_shapes_masking_and_sum(arch):
+    model = _model(arch)
+    x = torch.rand(3, 12, 2)
+    lengths = torch.tensor([12, 5, 1])
+    out = model(x, lengths)
+    k = 0 if arch == "instance_nn" else 2
+    assert out.returns.shape == (3,) and out.rewards.shape == (3, 12) and out.hidden.shape == (3, 12, k)
+    assert torch.all(out.rewards[1, 5:] == 0) and torch.all(out.rewards[2, 1:] == 0)
+    torch.testing.assert_close(out.rewards.sum(1), out.returns, rtol=1e-5, atol=1e-5)
+    # padding does not change what comes before it (the models are causal)
+    short = model(x[1:2, :5], lengths[1:2])
+    torch.testing.assert_close(short.rewards[0], out.rewards[1, :5])
+
+
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+@pytest.mark.parametrize("task,d", [("key", 2), ("lunar_lander", 8), ("push_switch", 2)])
+def test_online_step_equals_batched_forward(arch, task, d):
+    model = _model(arch, task, d)
+    states = np.random.default_rng(1).normal(size=(60, d)).astype(np.float32)
+    rewards, hidden = batched_reference(model, states)
+    online = OnlineRewardModel(model)
+    for episode in range(2):  # reset gives the same trajectory again
+        online.reset()
+        for t in range(len(states)):
+            r, h = online.step(states[t])
+            assert r == pytest.approx(rewards[t], abs=1e-5)
+            np.testing.assert_allclose(h, hidden[t], atol=1e-6)
+
+
+def test_online_step_rejects_bad_states():
+    online = OnlineRewardModel(_model("csc_lstm"))
+    with pytest.raises(ValueError, match="size 2"):
+        online.step(np.zeros(3))
+    with pytest.raises(ValueError, match="NaN"):
+        online.step(np.array([np.nan, 0.0]))
+
+
+def test_embedding_lstm_rewards_telescope_to_partial_returns():
+    model = _model("embedding_lstm")
+    x = torch.rand(1, 8, 2)
+    out = model(x, torch.tensor([8]))
+    for t in (1, 4, 8):
+        prefix = model(x[:, :t], torch.tensor([t]))
+        torch.testing.assert_close(out.rewards[0, :t].sum(), prefix.returns[0], rtol=1e-5, atol=1e-5)
+
+
+def test_normalisation_uses_training_split_only():
+    ds = make_toy_dataset("dial", 400, seed=0)
+    train, val, test = split_indices(len(ds), seed=3)
+    assert len(set(train) | set(val) | set(test)) == len(ds) and len(train) == 320
+    ds.states[test] += 100.0  # a shifted test split must not move the statistics
+    cfg = load_train_config("dial", max_epochs=1)
+    model = build_model(model_config("csc_lstm", "dial", 2))
+    train_model(model, ds.subset(train), ds.subset(val), cfg, progress=False)
+    shift, scale = normalisation(ds.subset(train))
+    np.testing.assert_allclose(model.input_shift.numpy(), shift, rtol=1e-6)
+    np.testing.assert_allclose(model.input_scale.numpy(), scale, rtol=1e-6)
+    assert abs(model.input_shift.numpy()).max() < 1.0
+
+
+def test_checkpoint_round_trip_and_refusals(tmp_path):
+    model = _model("csc_lstm")
+    path = save_checkpoint(model, tmp_path / "key_csc", task="key", seed=0, metrics={"x": 1.0})
+    loaded, meta = load_checkpoint(path, architecture="csc_lstm", input_size=2, task="key")
+    assert meta["task"] == "key" and meta["metrics"] == {"x": 1.0}
+    x = torch.rand(2, 10, 2)
+    torch.testing.assert_close(loaded(x, torch.tensor([10, 7])).rewards,
+                               model(x, torch.tensor([10, 7])).rewards)
+    with pytest.raises(CheckpointError, match="csc_lstm model, not the requested instance_lstm"):
+        load_checkpoint(path, architecture="instance_lstm")
+    with pytest.raises(CheckpointError, match="size 2, not 8"):
+        load_checkpoint(path, input_size=8)
+    with pytest.raises(CheckpointError, match="task 'key', not 'timer'"):
+        load_checkpoint(path, task="timer")
+    with pytest.raises(CheckpointError, match="missing"):
+        load_checkpoint(tmp_path / "nothing")
+    # weights that do not match their metadata
+    meta_path = path.with_suffix(".json")
+    record = json.loads(meta_path.read_text())
+    record["model"]["fe_sizes"] = [16, 8, 8]
+    meta_path.write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match="do not match their metadata"):
+        load_checkpoint(path)
+    meta_path.write_text("{ not json")
+    with pytest.raises(CheckpointError, match="malformed"):
+        load_checkpoint(path)
+    path.write_bytes(b"garbage")
+    meta_path.write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match="cannot read"):
+        load_checkpoint(path)
+
+
+def test_unknown_architecture():
+    with pytest.raises(ValueError, match="unknown architecture"):
+        model_config("transformer", "key", 2)
