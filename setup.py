@@ -19,6 +19,10 @@ PACKAGE = "nmrm_ros"
 # Executable name -> entry point. Every executable also gets a `lib/nmrm_ros/` shim under pip.
 EXECUTABLES = {
     "nmrm": "nmrm_ros.cli:main",
+    "env_sim": "nmrm_ros.nodes.env_sim_node:main",
+    "labeller_oracle": "nmrm_ros.nodes.labeller_oracle_node:main",
+    "reward_model": "nmrm_ros.nodes.reward_model_node:main",
+    "agent": "nmrm_ros.nodes.agent_node:main",
 }
 
 SHIM = """#!/bin/sh

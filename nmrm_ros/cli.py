@@ -155,6 +155,28 @@ def demo(
     typer.echo(f"      online step: median {np.median(step_times) * 1e6:.0f} µs")
 
 
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def launch(
+    ctx: typer.Context,
+    file: Path = typer.Argument(..., help="a ROS 2 YAML launch file (see nmrm_ros/launcher.py)"),
+    grace: float = typer.Option(10.0, help="seconds between SIGINT and SIGTERM when stopping"),
+) -> None:
+    """Run a launch file's nodes as separate processes; extra NAME:=VALUE set launch arguments."""
+    from .launcher import LaunchError, parse_launch_file, run
+
+    arguments = {}
+    for item in ctx.args:
+        if ":=" not in item:
+            raise typer.BadParameter(f"launch arguments are NAME:=VALUE, got {item!r}")
+        name, value = item.split(":=", 1)
+        arguments[name] = value
+    try:
+        nodes = parse_launch_file(file, arguments)
+    except LaunchError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    raise typer.Exit(run(nodes, grace=grace))
+
+
 def _load_or_generate(data: Path | None, task: str | None, n: int, seed: int):
     """A dataset from an .npz file, or generated (screened task / toy) from task, n and seed."""
     from .datasets import TOY_DATASETS, TrajectoryDataset, generate_screened, make_toy_dataset

@@ -115,7 +115,7 @@ def test_tracker_matches_batch_label():
         labels = oracle.label(states)
         tracker = oracle.tracker()
         for t in range(T):
-            h, r = tracker.step(states[0, t])
+            r, h = tracker.step(states[0, t])
             assert r == labels.rewards[0, t]
             np.testing.assert_array_equal(h, labels.hidden[0, t])
         assert tracker.total == pytest.approx(labels.returns[0])

@@ -95,7 +95,8 @@ class Oracle(ABC):
 
 
 class OracleTracker:
-    """Carries one trajectory's hidden state: `reset()`, then `step(s_t, a_t) -> (h_{t+1}, r_t)`."""
+    """Carries one trajectory's hidden state: `reset()`, then `step(s_t, a_t) -> (r_t, h_{t+1})`
+    (the same order as `nmrm_ros.mil.OnlineRewardModel.step`)."""
 
     def __init__(self, oracle: Oracle) -> None:
         self.oracle = oracle
@@ -106,10 +107,10 @@ class OracleTracker:
         self.t = 0
         self.total = 0.0
 
-    def step(self, state: np.ndarray, action: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    def step(self, state: np.ndarray, action: np.ndarray | None = None) -> tuple[float, np.ndarray]:
         s = np.asarray(state, dtype=np.float64).reshape(1, -1)
         a = None if action is None else np.asarray(action).reshape(1, -1)
         self.hidden, r = self.oracle.step(self.hidden, s, a)
         self.t += 1
         self.total += float(r[0])
-        return self.hidden[0].copy(), float(r[0])
+        return float(r[0]), self.hidden[0].copy()

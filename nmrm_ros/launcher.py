@@ -1,0 +1,240 @@
+"""`nmrm launch`: run a ROS 2 YAML launch file's nodes as separate processes, without ros2 launch.
+
+ROS 2's launch / launch_ros are not on PyPI, so this runs the documented subset of the ROS 2 YAML
+launch format that our launch files use (they stay valid for `ros2 launch` on a ROS 2 install):
+
+    launch:
+    - arg: {name: task, default: key}               # overridable as task:=timer
+    - node:
+        pkg: nmrm_ros                               # executable: <prefix>/lib/<pkg>/<exec>
+        exec: env_sim
+        name: env_sim                               # -> --ros-args -r __node:=env_sim
+        namespace: /robot1                          # -> -r __ns:=/robot1  (optional)
+        param:
+        - {name: task, value: $(var task)}          # -> -p task:=...
+        - {from: $(find-pkg-share nmrm_ros)/config/graph.yaml}   # -> --params-file ...
+        remap:
+        - {from: nmrm/observation, to: obs}         # -> -r nmrm/observation:=obs
+        args: "--extra args"                        # appended before --ros-args (optional)
+
+Substitutions: $(var NAME), $(find-pkg-share PKG), $(find-pkg-prefix PKG), $(env NAME [DEFAULT]).
+Anything else in the file is an error (not silently ignored).
+
+Process handling: each node's output is prefixed with its name. Ctrl-C / SIGTERM are forwarded as
+SIGINT to every node (SIGTERM after `grace` seconds, SIGKILL after twice that). When a node exits
+with a non-zero code, the others are stopped and the launcher exits with 1 and names the node.
+When every node has exited with 0, the launcher exits with 0.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+_SUBST = re.compile(r"\$\(([^)]*)\)")
+
+
+class LaunchError(ValueError):
+    """The launch file is invalid or uses something outside the supported subset."""
+
+
+@dataclass
+class NodeSpec:
+    name: str
+    cmd: list = field(default_factory=list)
+
+
+def _prefix(pkg: str) -> Path:
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+    try:
+        return Path(get_package_prefix(pkg))
+    except PackageNotFoundError:
+        raise LaunchError(f"package {pkg!r} not found in the ament index "
+                          f"(AMENT_PREFIX_PATH={os.environ.get('AMENT_PREFIX_PATH', '')!r})") from None
+
+
+def substitute(text, variables: dict) -> str:
+    """Resolve the supported $(...) substitutions in `text`."""
+    if not isinstance(text, str):
+        return str(text).lower() if isinstance(text, bool) else str(text)
+
+    def one(match: re.Match) -> str:
+        parts = match.group(1).split()
+        if not parts:
+            raise LaunchError(f"empty substitution in {text!r}")
+        kind, rest = parts[0], parts[1:]
+        if kind == "var" and len(rest) == 1:
+            if rest[0] not in variables:
+                raise LaunchError(f"launch argument {rest[0]!r} is not declared")
+            return variables[rest[0]]
+        if kind == "find-pkg-share" and len(rest) == 1:
+            return str(_prefix(rest[0]) / "share" / rest[0])
+        if kind == "find-pkg-prefix" and len(rest) == 1:
+            return str(_prefix(rest[0]))
+        if kind == "env" and len(rest) in (1, 2):
+            value = os.environ.get(rest[0], rest[1] if len(rest) == 2 else None)
+            if value is None:
+                raise LaunchError(f"environment variable {rest[0]} is not set")
+            return value
+        raise LaunchError(f"unsupported substitution $({match.group(1)}) in {text!r}")
+
+    return _SUBST.sub(one, text)
+
+
+def parse_launch_file(path: str | Path, arguments: dict | None = None,
+                      params_dir: str | Path | None = None) -> list:
+    """The node commands of a launch file, with `arguments` (name -> value) overriding defaults.
+
+    `name/value` parameters are written, as launch_ros does, to parameter files in `params_dir`
+    (a new temporary directory if None), values parsed as YAML ("5" -> 5, "" -> "")."""
+    path = Path(path)
+    if not path.is_file():
+        raise LaunchError(f"no launch file {path}")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise LaunchError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("launch"), list):
+        raise LaunchError(f"{path}: expected a top-level 'launch:' list")
+    arguments = dict(arguments or {})
+    params_dir = Path(params_dir or tempfile.mkdtemp(prefix="nmrm_launch_"))
+    variables: dict = {}
+    nodes = []
+    for entry in doc["launch"]:
+        if not isinstance(entry, dict) or len(entry) != 1:
+            raise LaunchError(f"{path}: each launch entry is one of 'arg' or 'node', got {entry!r}")
+        (kind, body), = entry.items()
+        if kind == "arg":
+            name = body.get("name")
+            if name in arguments:
+                variables[name] = arguments.pop(name)
+            elif "default" in body:
+                variables[name] = substitute(body["default"], variables)
+            else:
+                raise LaunchError(f"launch argument {name!r} has no default; give {name}:=VALUE")
+        elif kind == "node":
+            nodes.append(_node(body, variables, path, params_dir))
+        else:
+            raise LaunchError(f"{path}: unsupported launch entry {kind!r} (supported: arg, node)")
+    if arguments:
+        raise LaunchError(f"unknown launch argument(s) {sorted(arguments)}; declared: {sorted(variables)}")
+    return nodes
+
+
+def _node(body: dict, variables: dict, path: Path, params_dir: Path) -> NodeSpec:
+    known = {"pkg", "exec", "name", "namespace", "param", "remap", "args", "output"}
+    extra = set(body) - known
+    if extra:
+        raise LaunchError(f"{path}: unsupported node attribute(s) {sorted(extra)}")
+    pkg, exe = substitute(body["pkg"], variables), substitute(body["exec"], variables)
+    executable = _prefix(pkg) / "lib" / pkg / exe
+    if not os.access(executable, os.X_OK):
+        raise LaunchError(f"no executable {exe!r} in package {pkg!r} ({executable})")
+    name = substitute(body.get("name", exe), variables)
+    cmd = [str(executable), *shlex.split(substitute(body.get("args", ""), variables)), "--ros-args",
+           "-r", f"__node:={name}"]
+    if "namespace" in body:
+        cmd += ["-r", f"__ns:={substitute(body['namespace'], variables)}"]
+    group: dict = {}
+
+    def flush() -> None:
+        if group:
+            file = params_dir / f"{name}_{len(list(params_dir.iterdir()))}.yaml"
+            file.write_text(yaml.safe_dump({"/**": {"ros__parameters": dict(group)}}))
+            cmd.extend(["--params-file", str(file)])
+            group.clear()
+
+    for p in body.get("param", []) or []:
+        if "from" in p:
+            flush()
+            cmd += ["--params-file", substitute(p["from"], variables)]
+        else:
+            value = yaml.safe_load(substitute(p["value"], variables))
+            group[p["name"]] = "" if value is None else value
+    flush()
+    for r in body.get("remap", []) or []:
+        cmd += ["-r", f"{substitute(r['from'], variables)}:={substitute(r['to'], variables)}"]
+    return NodeSpec(name, cmd)
+
+
+def _pump(stream, name: str, out) -> None:
+    for line in iter(stream.readline, ""):
+        out.write(f"[{name}] {line}")
+        out.flush()
+
+
+def run(nodes: list, grace: float = 10.0, out=None) -> int:
+    """Start every node, forward signals, and wait; returns the launcher's exit code."""
+    out = out or sys.stdout
+    procs: list = []
+    stopping = {"why": None}
+
+    def stop_all(sig=signal.SIGINT) -> None:
+        for _, p in procs:
+            if p.poll() is None:
+                try:
+                    p.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+
+    def on_signal(signum, frame) -> None:
+        if stopping["why"] is None:
+            stopping["why"] = signal.Signals(signum).name
+            out.write(f"[nmrm launch] {stopping['why']}: stopping {len(procs)} node(s)\n")
+        stop_all()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    threads = []
+    try:
+        for spec in nodes:
+            p = subprocess.Popen(spec.cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                 start_new_session=True)
+            procs.append((spec.name, p))
+            t = threading.Thread(target=_pump, args=(p.stdout, spec.name, out), daemon=True)
+            t.start()
+            threads.append(t)
+        failed = None
+        stop_sent_at = None
+        while any(p.poll() is None for _, p in procs):
+            for name, p in procs:
+                code = p.poll()
+                if code not in (None, 0) and failed is None and stopping["why"] is None:
+                    failed = (name, code)
+                    out.write(f"[nmrm launch] node '{name}' died with exit code {code}; stopping the others\n")
+                    stopping["why"] = "failure"
+                    stop_all()
+            if stopping["why"] is not None:
+                stop_sent_at = stop_sent_at or time.monotonic()
+                waited = time.monotonic() - stop_sent_at
+                if waited > 2 * grace:
+                    stop_all(signal.SIGKILL)
+                elif waited > grace:
+                    stop_all(signal.SIGTERM)
+            time.sleep(0.05)
+        for t in threads:
+            t.join(timeout=1.0)
+        if failed is None:
+            for name, p in procs:
+                if p.returncode not in (0, -signal.SIGINT) and stopping["why"] is None:
+                    failed = (name, p.returncode)
+        if failed is not None:
+            out.write(f"[nmrm launch] failed: node '{failed[0]}' exited with code {failed[1]}\n")
+            return 1
+        out.write(f"[nmrm launch] all {len(procs)} node(s) exited cleanly\n")
+        return 0
+    finally:
+        stop_all(signal.SIGKILL)
+        for s, h in old.items():
+            signal.signal(s, h)

@@ -1,0 +1,171 @@
+"""env_sim: owns one task environment and runs its episodes in lock-step with the agent.
+
+Protocol (per episode e, from step t = 0):
+  publish EnvObservation(e, t, s_t) -> wait for AgentAction(e, t) -> step -> publish (e, t + 1) ...
+At the end of an episode (terminated or truncated) the final observation is published with its
+flag set and no action is awaited; the next episode starts. After `episodes` episodes (0 = run
+for ever) the node exits with code 0.
+
+Actions for anything but the awaited (episode, step), of the wrong size, NaN/inf, or outside the
+action space are dropped with a counted warning, never stepped. If no valid action arrives within
+`action_timeout` s the observation is published again (the agent re-sends the same action for a
+repeated observation); after `max_retries` repeats the node gives up and exits with code 1.
+Before the first episode the node waits until `wait_for_subscribers` subscriptions match its
+observation topic and an action publisher is matched (up to `startup_timeout` s).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from nmrm_msgs.msg import AgentAction, EnvObservation
+
+from ..ros.messages import as_vector, to_float_list
+from ..ros.node_main import NodeError, Param, declare_parameters, run_node
+from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
+
+PARAMETERS = {
+    "task": Param("key", "timer | moving | key | charger | lunar_lander"),
+    "seed": Param(0, "seed of episode 0; episode e resets with seed + e"),
+    "episodes": Param(1, "number of episodes to run, 0 = for ever"),
+    "continuous": Param(False, "continuous-action variant of the navigation tasks"),
+    "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation"),
+    "max_retries": Param(3, "re-publications of one observation before giving up (exit 1)"),
+    "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting"),
+    "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher"),
+}
+
+
+class EnvSimNode(Node):
+    def __init__(self) -> None:
+        super().__init__("env_sim")
+        p = declare_parameters(self, PARAMETERS)
+        from ..tasks import make_env, task_info
+
+        try:
+            self.info = task_info(p["task"])
+        except ValueError as exc:
+            raise NodeError(str(exc)) from None
+        self.task = p["task"]
+        self.env = make_env(self.task, continuous=p["continuous"])
+        self.discrete = self.info.discrete and not p["continuous"]
+        self.seed = int(p["seed"])
+        self.episodes = int(p["episodes"])
+        self.action_timeout = float(p["action_timeout"])
+        self.max_retries = int(p["max_retries"])
+        self.wait_for = int(p["wait_for_subscribers"])
+        self.startup_deadline = time.monotonic() + float(p["startup_timeout"])
+
+        self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
+        self.sub = self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS)
+        self.episode = -1
+        self.step_index = 0
+        self.state = None
+        self.retries = 0
+        self.sent_at = 0.0
+        self.dropped = 0
+        self.steps_total = 0
+        self.exit_code = None
+        self.started = False
+        self.timer = self.create_timer(0.05, self.on_timer)
+        self.get_logger().info(f"task {self.task}, seed {self.seed}, episodes {self.episodes or 'forever'}; "
+                               f"waiting for {self.wait_for} subscriber(s)")
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def on_timer(self) -> None:
+        now = time.monotonic()
+        if not self.started:
+            ready = (self.pub.get_subscription_count() >= self.wait_for
+                     and self.sub.get_publisher_count() >= 1)
+            if ready:
+                self.started = True
+                self.t_start = now
+                self.start_episode()
+            elif now > self.startup_deadline:
+                self.get_logger().error(
+                    f"start-up timeout: {self.pub.get_subscription_count()} observation subscriber(s) "
+                    f"of {self.wait_for}, {self.sub.get_publisher_count()} action publisher(s)")
+                self.exit_code = 1
+            return
+        if self.state is not None and now - self.sent_at > self.action_timeout:
+            if self.retries >= self.max_retries:
+                self.get_logger().error(f"no valid action for episode {self.episode} step "
+                                        f"{self.step_index} after {self.retries} re-publications; giving up")
+                self.exit_code = 1
+                return
+            self.retries += 1
+            self.get_logger().warning(f"action timeout at episode {self.episode} step {self.step_index}; "
+                                      f"re-publishing the observation ({self.retries}/{self.max_retries})")
+            self.publish_observation(False, False)
+
+    def start_episode(self) -> None:
+        self.episode += 1
+        if self.episodes and self.episode >= self.episodes:
+            seconds = time.monotonic() - self.t_start
+            self.get_logger().info(f"done: {self.episode} episodes, {self.steps_total} steps in "
+                                   f"{seconds:.2f} s ({self.steps_total / max(seconds, 1e-9):.0f} steps/s), "
+                                   f"{self.dropped} action(s) dropped")
+            self.state = None
+            self.exit_code = 0
+            return
+        obs, _ = self.env.reset(seed=self.seed + self.episode)
+        self.step_index = 0
+        self.state = obs
+        self.publish_observation(False, False)
+
+    def publish_observation(self, terminated: bool, truncated: bool) -> None:
+        msg = EnvObservation(task=self.task, episode=self.episode, step=self.step_index,
+                             state=to_float_list(self.state), terminated=terminated, truncated=truncated)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self.task
+        self.sent_at = time.monotonic()
+        self.pub.publish(msg)
+
+    # -- actions -------------------------------------------------------------------------------
+    def drop(self, why: str) -> None:
+        self.dropped += 1
+        self.get_logger().warning(f"dropped action ({self.dropped} so far): {why}")
+
+    def on_action(self, msg: AgentAction) -> None:
+        if self.state is None or msg.episode != self.episode or msg.step != self.step_index:
+            # stale (answer to an old or re-published observation) or from the future
+            if not (msg.episode == self.episode and msg.step < self.step_index):
+                self.drop(f"for episode {msg.episode} step {msg.step}, awaiting episode "
+                          f"{self.episode} step {self.step_index}")
+            else:
+                self.dropped += 1  # a duplicate answer to a re-published observation: expected
+            return
+        try:
+            action = self.parse_action(msg.action)
+        except ValueError as exc:
+            self.drop(str(exc))
+            return
+        obs, _, terminated, truncated, _ = self.env.step(action)
+        self.steps_total += 1
+        self.retries = 0
+        self.step_index += 1
+        self.state = obs
+        if terminated or truncated:
+            self.publish_observation(bool(terminated), bool(truncated))
+            self.start_episode()
+        else:
+            self.publish_observation(False, False)
+
+    def parse_action(self, values) -> np.ndarray | int:
+        if self.discrete:
+            a = as_vector(values, 1, "action")[0]
+            if a != int(a) or not 0 <= a < self.info.action_size:
+                raise ValueError(f"discrete action {a} is not an index in 0..{self.info.action_size - 1}")
+            return int(a)
+        return as_vector(values, 2, "action").astype(np.float32)
+
+
+def main(args=None) -> int:
+    return run_node(EnvSimNode, "env_sim", __doc__.strip().splitlines()[0], PARAMETERS, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

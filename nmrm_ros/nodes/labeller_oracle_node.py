@@ -1,0 +1,123 @@
+"""labeller_oracle: watches trajectories and publishes their returns, computed by the task's oracle.
+
+THE LABELLER CONTRACT (what a human-labelling node implements too; see README.md):
+- subscribes to `nmrm/observation` (EnvObservation; may also use `nmrm/action`);
+- an episode is identified by (task, episode) of its observations; it is complete when the
+  observation with `terminated` or `truncated` set arrives, whose `step` is the episode length L;
+- publishes exactly one TrajectoryReturn(task, episode, length=L, return_value, labeller) per
+  complete episode it labels, after that final observation (a person may take longer; nothing
+  waits for the label). Episodes that it could not follow in full are not labelled.
+This oracle labeller also publishes, if `publish_oracle_steps`, one OracleStep per step t < L with
+the true h_{t+1} and r_t (for evaluation only).
+
+Observations are followed with the rule of `nmrm_ros.ros.episodes` (duplicates ignored, a gap or
+disorder breaks the episode); a state of the wrong size or with NaN breaks the episode too. Broken
+episodes are counted and logged, never labelled.
+
+Simulated label noise (`label_noise_std` > 0): Gaussian noise added to the published return (seeded
+by `noise_seed`). The paper's label *swapping* needs a pool of labelled trajectories and is done
+offline on datasets, not here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+
+from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryReturn
+
+from ..ros.episodes import EpisodeFollower, Kind
+from ..ros.messages import as_vector, to_float_list
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
+                             exit_with_upstream, run_node)
+from ..ros.topics import OBSERVATION, ORACLE_STEP, STEP_QOS, TRAJECTORY_RETURN
+
+PARAMETERS = {
+    "exit_with_upstream": EXIT_WITH_UPSTREAM,
+    "task": Param("key", "task whose oracle labels the episodes"),
+    "publish_oracle_steps": Param(True, "also publish per-step ground truth (OracleStep)"),
+    "label_noise_std": Param(0.0, "std of Gaussian noise added to each published return"),
+    "noise_seed": Param(0, "seed of the label noise"),
+}
+
+
+class LabellerOracleNode(Node):
+    def __init__(self) -> None:
+        self.exit_code = None
+        super().__init__("labeller_oracle")
+        p = declare_parameters(self, PARAMETERS)
+        from ..oracles import make_oracle
+        from ..tasks import task_info
+
+        try:
+            self.info = task_info(p["task"])
+        except ValueError as exc:
+            raise NodeError(str(exc)) from None
+        self.task = p["task"]
+        self.oracle = make_oracle(self.task)
+        self.tracker = self.oracle.tracker()
+        self.follower = EpisodeFollower()
+        self.publish_steps = bool(p["publish_oracle_steps"])
+        self.noise_std = float(p["label_noise_std"])
+        self.rng = np.random.default_rng(int(p["noise_seed"]))
+        self.labeller = f"oracle/{self.task}"
+        self.labelled = 0
+        self.broken = 0
+        self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
+        self.step_pub = self.create_publisher(OracleStep, ORACLE_STEP, STEP_QOS)
+        self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
+        if p["exit_with_upstream"]:
+            exit_with_upstream(self, self.sub)
+
+    def mark_broken(self, msg: EnvObservation, why: str) -> None:
+        if not self.follower.broken or self.follower.episode != msg.episode:
+            self.broken += 1
+            self.get_logger().warning(f"episode {msg.episode} not labelled ({self.broken} so far): {why}")
+        self.follower.broken = True
+        self.follower.episode = msg.episode
+
+    def on_observation(self, msg: EnvObservation) -> None:
+        try:
+            if msg.task != self.task:
+                raise ValueError(f"observation of task {msg.task!r}, this labeller labels {self.task!r}")
+            state = as_vector(msg.state, self.info.state_size, "state")
+        except ValueError as exc:
+            self.mark_broken(msg, str(exc))
+            return
+        kind = self.follower.classify(msg.episode, msg.step, state)
+        if kind is Kind.DUPLICATE:
+            return
+        if kind is Kind.BROKEN:
+            self.mark_broken(msg, f"step {msg.step} out of order")
+            return
+        if kind is Kind.START:
+            self.tracker.reset()
+        if msg.terminated or msg.truncated:
+            if msg.step == 0:
+                self.mark_broken(msg, "final observation at step 0")
+                return
+            self.follower.finish()
+            value = self.tracker.total + (self.rng.normal(0.0, self.noise_std) if self.noise_std > 0 else 0.0)
+            out = TrajectoryReturn(task=self.task, episode=msg.episode, length=msg.step,
+                                   return_value=float(value), labeller=self.labeller)
+            out.header.stamp = self.get_clock().now().to_msg()
+            self.return_pub.publish(out)
+            self.labelled += 1
+            return
+        reward, hidden = self.tracker.step(state)
+        if self.publish_steps:
+            step = OracleStep(episode=msg.episode, step=msg.step, hidden=to_float_list(hidden),
+                              reward=float(reward))
+            step.header = msg.header
+            self.step_pub.publish(step)
+
+    def close(self) -> None:
+        self.get_logger().info(f"labelled {self.labelled} episode(s), {self.broken} broken")
+
+
+def main(args=None) -> int:
+    return run_node(LabellerOracleNode, "labeller_oracle", __doc__.strip().splitlines()[0], PARAMETERS, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

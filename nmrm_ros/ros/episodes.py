@@ -1,0 +1,58 @@
+"""Following episodes from the observation stream: the ordering rule every consumer applies.
+
+For each EnvObservation, `EpisodeFollower.classify` says what it is for a consumer that must see
+each episode's steps exactly once and in order:
+
+- START: step 0 of an episode (any episode number): (re)starts that episode.
+- NEXT: the next step of the current episode.
+- DUPLICATE: the same (episode, step) again with the same state (env_sim re-publishes an
+  observation when an action times out): answer as before, do not step again.
+- BROKEN: anything else (a step skipped, a step from the past with another state, another
+  episode without its step 0, a step after the final one): the current episode is broken; the
+  consumer stops following it until the next step 0, and counts it.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+
+class Kind(enum.Enum):
+    START = "start"
+    NEXT = "next"
+    DUPLICATE = "duplicate"
+    BROKEN = "broken"
+
+
+class EpisodeFollower:
+    def __init__(self) -> None:
+        self.episode: int | None = None
+        self.step = -1
+        self.state: np.ndarray | None = None
+        self.finished = False
+        self.broken = False
+
+    def classify(self, episode: int, step: int, state: np.ndarray) -> Kind:
+        if step == 0 and not (episode == self.episode and self.step == 0 and self._same(state)):
+            self.episode, self.step, self.state = episode, 0, state
+            self.finished = self.broken = False
+            return Kind.START
+        if self.broken or episode != self.episode:
+            self.broken = True
+            return Kind.BROKEN
+        if step == self.step and self._same(state):
+            return Kind.DUPLICATE
+        if step == self.step + 1 and not self.finished:
+            self.step, self.state = step, state
+            return Kind.NEXT
+        self.broken = True
+        return Kind.BROKEN
+
+    def finish(self) -> None:
+        """Mark the current episode complete (its final observation was consumed)."""
+        self.finished = True
+
+    def _same(self, state: np.ndarray) -> bool:
+        return self.state is not None and self.state.shape == state.shape and bool(np.all(self.state == state))
