@@ -69,12 +69,11 @@ class LabellerOracleNode(Node):
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
 
-    def mark_broken(self, msg: EnvObservation, why: str) -> None:
-        if not self.follower.broken or self.follower.episode != msg.episode:
+    def mark_broken(self, msg: EnvObservation, why: str, newly: bool | None = None) -> None:
+        """Count and log an episode the first time it breaks."""
+        if newly if newly is not None else self.follower.break_episode(msg.episode):
             self.broken += 1
             self.get_logger().warning(f"episode {msg.episode} not labelled ({self.broken} so far): {why}")
-        self.follower.broken = True
-        self.follower.episode = msg.episode
 
     def on_observation(self, msg: EnvObservation) -> None:
         try:
@@ -88,13 +87,13 @@ class LabellerOracleNode(Node):
         if kind is Kind.DUPLICATE:
             return
         if kind is Kind.BROKEN:
-            self.mark_broken(msg, f"step {msg.step} out of order")
+            self.mark_broken(msg, f"step {msg.step} out of order", self.follower.just_broke)
             return
         if kind is Kind.START:
             self.tracker.reset()
         if msg.terminated or msg.truncated:
             if msg.step == 0:
-                self.mark_broken(msg, "final observation at step 0")
+                self.mark_broken(msg, "final observation at step 0", self.follower.break_episode(msg.episode))
                 return
             self.follower.finish()
             value = self.tracker.total + (self.rng.normal(0.0, self.noise_std) if self.noise_std > 0 else 0.0)

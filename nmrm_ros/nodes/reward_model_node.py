@@ -88,13 +88,12 @@ class RewardModelNode(Node):
             exit_with_upstream(self, self.sub)
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}")
 
-    def mark_broken(self, msg: EnvObservation, why: str) -> None:
-        if not self.follower.broken or self.follower.episode != msg.episode:
+    def mark_broken(self, msg: EnvObservation, why: str, newly: bool | None = None) -> None:
+        """Count and log an episode the first time it breaks."""
+        if newly if newly is not None else self.follower.break_episode(msg.episode):
             self.broken += 1
             self.get_logger().warning(f"episode {msg.episode} broken at step {msg.step} "
                                       f"({self.broken} so far): {why}; waiting for the next step 0")
-        self.follower.broken = True
-        self.follower.episode = msg.episode
 
     def on_observation(self, msg: EnvObservation) -> None:
         try:
@@ -109,7 +108,7 @@ class RewardModelNode(Node):
             self.pub.publish(self.last)
             return
         if kind is Kind.BROKEN:
-            self.mark_broken(msg, "step out of order")
+            self.mark_broken(msg, "step out of order", self.follower.just_broke)
             return
         t0 = time.perf_counter()
         if kind is Kind.START:

@@ -3,7 +3,8 @@
 For each EnvObservation, `EpisodeFollower.classify` says what it is for a consumer that must see
 each episode's steps exactly once and in order:
 
-- START: step 0 of an episode (any episode number): (re)starts that episode.
+- START: step 0 of an episode (any episode number): (re)starts that episode, unless it repeats
+  the step 0 just seen (then DUPLICATE).
 - NEXT: the next step of the current episode.
 - DUPLICATE: the same (episode, step) again with the same state (env_sim re-publishes an
   observation when an action times out): answer as before, do not step again.
@@ -33,21 +34,31 @@ class EpisodeFollower:
         self.state: np.ndarray | None = None
         self.finished = False
         self.broken = False
+        #: True if the last classify/break_episode call broke a so-far-intact episode
+        self.just_broke = False
+
+    def break_episode(self, episode: int) -> bool:
+        """Mark `episode` broken (e.g. its state was invalid); True if it was not broken before."""
+        newly = not (self.broken and self.episode == episode)
+        self.episode, self.broken, self.just_broke = episode, True, newly
+        return newly
 
     def classify(self, episode: int, step: int, state: np.ndarray) -> Kind:
-        if step == 0 and not (episode == self.episode and self.step == 0 and self._same(state)):
+        self.just_broke = False
+        if step == 0 and (self.broken or not (episode == self.episode and self.step == 0
+                                              and self._same(state))):
             self.episode, self.step, self.state = episode, 0, state
             self.finished = self.broken = False
             return Kind.START
         if self.broken or episode != self.episode:
-            self.broken = True
+            self.break_episode(episode)
             return Kind.BROKEN
         if step == self.step and self._same(state):
             return Kind.DUPLICATE
         if step == self.step + 1 and not self.finished:
             self.step, self.state = step, state
             return Kind.NEXT
-        self.broken = True
+        self.break_episode(episode)
         return Kind.BROKEN
 
     def finish(self) -> None:

@@ -95,10 +95,23 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
             close = getattr(node, "close", None)
             if close is not None:
                 close()
+            _flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
     return code
+
+
+def _flush_publishers(node, timeout: float = 2.0) -> None:
+    """Wait (bounded) until reliable subscribers acknowledged what we published, so the last
+    messages (an episode's final observation, its label) are not lost when the process exits."""
+    from rclpy.duration import Duration
+
+    for pub in list(node.publishers):
+        try:
+            pub.wait_for_all_acked(Duration(seconds=timeout))
+        except Exception:  # noqa: BLE001 - best effort at shutdown
+            pass
 
 
 def _executor():

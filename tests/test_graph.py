@@ -1,0 +1,173 @@
+"""The node graph over real topics, each node its own process (each test on its own domain)."""
+
+from collections import Counter
+
+import numpy as np
+import pytest
+import torch
+
+from graph_helpers import Capture, episodes_of, finish, launch, start
+from nmrm_msgs.msg import EnvObservation
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.mil import load_checkpoint, load_train_config
+from nmrm_ros.mil.online import batched_reference
+from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.oracles import make_oracle
+from nmrm_ros.ros.topics import OBSERVATION
+
+EPISODES = 3
+
+
+@pytest.fixture
+def capture(ros_domain):
+    cap = Capture()
+    yield cap
+    cap.close()
+
+
+@pytest.fixture(scope="module")
+def key_checkpoint(tmp_path_factory):
+    """A small CSC model trained for a few epochs on Key trajectories."""
+    ds = generate_screened("key", 300, seed=0)
+    cfg = load_train_config("key", max_epochs=3)
+    path = tmp_path_factory.mktemp("ckpt") / "key_csc"
+    run = train_and_evaluate(ds, "csc_lstm", cfg, out=path, progress=False)
+    return run.checkpoint
+
+
+def run_graph(capture, *arguments):
+    """Launch the graph with one extra subscriber (the capture) and wait for it to finish."""
+    # env_sim waits for 3 observation subscribers: labeller, reward model and this capture
+    proc = launch(*arguments, f"episodes:={EPISODES}", "wait_for_subscribers:=3")
+    capture.spin_until(lambda: proc.poll() is not None, 90)
+    code, out = finish(proc, timeout=30)
+    capture.spin_for(0.3)
+    assert code == 0, out
+    assert "all 4 node(s) exited cleanly" in out
+    return out
+
+
+def check_lockstep(capture, task="key"):
+    eps = episodes_of(capture.msgs["observation"])
+    assert sorted(eps) == list(range(EPISODES))
+    for e, (states, steps, flags) in eps.items():
+        assert steps == list(range(101)), f"episode {e}: steps {steps[:5]}..."
+        assert flags[-1] == (False, True) and all(f == (False, False) for f in flags[:-1])
+    actions = Counter((m.episode, m.step) for m in capture.msgs["action"])
+    assert set(actions) == {(e, t) for e in range(EPISODES) for t in range(100)}
+    assert set(actions.values()) == {1}  # every step answered exactly once
+    steps = Counter((m.episode, m.step) for m in capture.msgs["reward_step"])
+    assert set(steps) == {(e, t) for e in range(EPISODES) for t in range(101)} and set(steps.values()) == {1}
+    return eps
+
+
+def test_graph_oracle_mode_and_labeller(capture):
+    out = run_graph(capture, "mode:=oracle", "task:=key")
+    eps = check_lockstep(capture)
+    oracle = make_oracle("key")
+    labels = {m.episode: m for m in capture.msgs["label"]}
+    assert sorted(labels) == list(range(EPISODES))
+    for e, (states, _, _) in eps.items():
+        truth = oracle.label(states[None, :100])
+        # the labeller's return equals the oracle's return computed offline from the observations
+        assert labels[e].return_value == pytest.approx(truth.returns[0], abs=1e-9)
+        assert labels[e].length == 100 and labels[e].labeller == "oracle/key" and labels[e].task == "key"
+        rs = sorted((m for m in capture.msgs["reward_step"] if m.episode == e), key=lambda m: m.step)
+        np.testing.assert_allclose([m.reward for m in rs[:100]], truth.rewards[0], atol=1e-6)
+        np.testing.assert_allclose([m.hidden[0] for m in rs[:100]], truth.hidden[0, :, 0], atol=1e-6)
+        assert all(m.source == "oracle" for m in rs)
+        assert list(rs[5].augmented_state) == list(rs[5].state) + list(rs[5].hidden)
+        os_ = sorted((m for m in capture.msgs["oracle_step"] if m.episode == e), key=lambda m: m.step)
+        np.testing.assert_allclose([m.reward for m in os_], truth.rewards[0], atol=1e-6)
+    assert "labelled 3 episode(s), 0 broken" in out
+
+
+def test_graph_model_mode_equals_batched_forward(capture, key_checkpoint):
+    run_graph(capture, "mode:=model", f"checkpoint:={key_checkpoint}", "task:=key")
+    eps = check_lockstep(capture)
+    model, _ = load_checkpoint(key_checkpoint)
+    for e, (states, _, _) in eps.items():
+        rewards, hidden = batched_reference(model, states)  # includes the final observation
+        rs = sorted((m for m in capture.msgs["reward_step"] if m.episode == e), key=lambda m: m.step)
+        np.testing.assert_allclose([m.reward for m in rs], rewards, atol=1e-4)
+        np.testing.assert_allclose([list(m.hidden) for m in rs], hidden, atol=1e-5)
+        assert rs[0].source == "key_csc"
+
+
+def test_bad_observations_are_dropped_and_counted(capture):
+    """Wrong state size, NaN and a skipped step break the episode in the reward model and the
+    labeller: logged, counted, nothing published for it; a good episode afterwards works."""
+    rm = start("reward_model", mode="oracle", task="key")
+    lab = start("labeller_oracle", task="key")
+    pub = capture.publisher(EnvObservation, OBSERVATION)
+    assert capture.spin_until(lambda: pub.get_subscription_count() >= 3, 30)  # rm, lab, capture
+    def obs(e, t, state, truncated=False):
+        return EnvObservation(task="key", episode=e, step=t, state=state, truncated=truncated)
+    sent = [obs(0, 0, [0.5, 0.5]), obs(0, 1, [0.5, 0.5, 0.5]),                  # wrong size
+            obs(1, 0, [0.5, 0.5]), obs(1, 1, [float("nan"), 0.5]),             # NaN
+            obs(2, 0, [0.5, 0.5]), obs(2, 2, [0.5, 0.6]),                      # step 1 missing
+            obs(3, 0, [0.5, 0.2]), obs(3, 1, [0.5, 0.8]), obs(3, 1, [0.5, 0.8]),  # duplicate: fine
+            obs(3, 2, [0.5, 0.8], truncated=True)]
+    for m in sent:
+        pub.publish(m)
+    assert capture.spin_until(lambda: len(capture.msgs["label"]) >= 1, 20)
+    capture.spin_for(0.5)
+    for p in (rm, lab):
+        p.send_signal(2)
+    code_rm, out_rm = finish(rm)
+    code_lab, out_lab = finish(lab)
+    assert code_rm == 0 and code_lab == 0
+    # only episode 3 was labelled: key at t = 0, treasure at t = 1 -> return 1
+    assert [(m.episode, m.return_value, m.length) for m in capture.msgs["label"]] == [(3, 1.0, 2)]
+    published = Counter((m.episode, m.step) for m in capture.msgs["reward_step"])
+    assert set(published) == {(0, 0), (1, 0), (2, 0), (3, 0), (3, 1), (3, 2)}
+    assert published[(3, 1)] == 2  # the duplicate got the same answer again
+    assert "size 3, expected 2" in out_rm and "NaN" in out_rm and "out of order" in out_rm
+    assert "3 broken episode(s)" in out_rm and "labelled 1 episode(s), 3 broken" in out_lab
+
+
+@pytest.mark.parametrize("node,params,message", [
+    ("env_sim", {"task": "maze"}, "unknown task 'maze'"),
+    ("labeller_oracle", {"task": "maze"}, "unknown task 'maze'"),
+    ("reward_model", {"mode": "model", "checkpoint": "/nonexistent/ckpt"}, "checkpoint file missing"),
+    ("reward_model", {"mode": "oracle"}, "needs the parameter task"),
+    ("agent", {"policy": "sb3", "policy_path": "/nonexistent.zip"}, "existing policy_path"),
+])
+def test_bad_configuration_exits_with_message(ros_domain, node, params, message):
+    code, out = finish(start(node, **params), timeout=30)
+    assert code == 2 and message in out, out
+
+
+def test_mismatched_checkpoint_is_refused(ros_domain, key_checkpoint):
+    code, out = finish(start("reward_model", mode="model", checkpoint=key_checkpoint, task="timer"), 30)
+    assert code == 2 and "trained on task 'key', not 'timer'" in out
+
+
+def test_launch_reports_a_dead_node(ros_domain):
+    code, out = finish(launch("mode:=model", "checkpoint:=/nonexistent", "episodes:=1"), timeout=60)
+    assert code == 1
+    assert "node 'reward_model' died with exit code 2" in out and "checkpoint file missing" in out
+
+
+def test_env_sim_drops_bad_actions(capture):
+    """Stale, malformed and NaN actions are dropped with a counted warning, never stepped."""
+    from nmrm_msgs.msg import AgentAction
+    from nmrm_ros.ros.topics import ACTION
+
+    env = start("env_sim", task="key", episodes=1, wait_for_subscribers=1, action_timeout=30.0)
+    pub = capture.publisher(AgentAction, ACTION)
+    assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= 1, 30)
+    for bad in (AgentAction(episode=0, step=5, action=[1.0]),     # future step
+                AgentAction(episode=0, step=0, action=[7.0]),     # not an action index
+                AgentAction(episode=0, step=0, action=[1.0, 2.0]),  # wrong size
+                AgentAction(episode=0, step=0, action=[float("nan")])):
+        pub.publish(bad)
+    capture.spin_for(0.5)
+    assert len(capture.msgs["observation"]) == 1  # nothing was stepped
+    for t in range(100):
+        pub.publish(AgentAction(episode=0, step=t, action=[1.0]))
+        assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= t + 2, 10)
+    code, out = finish(env)
+    assert code == 0 and "4 action(s) dropped" in out
+    states = np.array([list(m.state) for m in capture.msgs["observation"]])
+    assert states.shape == (101, 2) and capture.msgs["observation"][-1].truncated
