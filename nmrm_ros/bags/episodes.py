@@ -1,0 +1,221 @@
+"""Episodes <-> bags: the bag is the project's one dataset format.
+
+`write_dataset_bag` writes a `TrajectoryDataset` (e.g. a screened dataset) as the live graph
+would record it: per episode, EnvObservation steps 0..L (the last one truncated/terminated),
+AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from `oracle/<task>`.
+
+`load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations,
+labels from TrajectoryReturn messages (in the same bag, or in labels-only bags given beside it,
+joined by (task, episode)), oracle ground truth from OracleStep if present. Episodes that cannot be
+used are skipped and counted by reason, never used silently:
+  missing_steps, conflicting_duplicates, no_final_observation, wrong_state_size, no_label,
+  label_length_mismatch.
+Identical repeated observations (env_sim re-publishing after an action timeout) are not errors.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..datasets.trajectories import TrajectoryDataset
+from ..tasks import task_info
+from .reader import BagError, iter_decoded
+from .schemas import TOPIC_TYPES
+from .writer import BagWriter
+
+T_OBS = "nmrm_msgs/msg/EnvObservation"
+T_ACT = "nmrm_msgs/msg/AgentAction"
+T_RET = "nmrm_msgs/msg/TrajectoryReturn"
+T_ORC = "nmrm_msgs/msg/OracleStep"
+TOPIC = {t: topic for topic, t in TOPIC_TYPES.items()}
+#: log time of the first message of generated bags (2025-01-01T00:00:00Z), and the step period
+BASE_TIME_NS = 1_735_689_600 * 10**9
+STEP_NS = 10_000_000
+
+
+def _header(t_ns: int, frame: str = "") -> dict:
+    return {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": frame}
+
+
+def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | None = None,
+                      start_ns: int = BASE_TIME_NS, first_episode: int = 0,
+                      include_oracle: bool = True) -> Path:
+    """Write every trajectory of `ds` as an episode (numbered from `first_episode`)."""
+    if ds.final_states is None:
+        raise ValueError("the dataset has no final observations (toy bags are not episodes)")
+    labeller = labeller or f"oracle/{ds.task}"
+    t = start_ns
+    with BagWriter(path) as bag:
+        for i in range(len(ds)):
+            e = first_episode + i
+            length = int(ds.lengths[i])
+            for step in range(length + 1):
+                final = step == length
+                state = ds.final_states[i] if final else ds.states[i, step]
+                bag.write_dict(TOPIC[T_OBS], T_OBS, {
+                    "header": _header(t, ds.task), "task": ds.task, "episode": e, "step": step,
+                    "state": [float(x) for x in state], "terminated": False, "truncated": final}, t)
+                if not final:
+                    if ds.actions is not None:
+                        a = np.asarray(ds.actions[i, step], dtype=np.float64).reshape(-1)
+                        bag.write_dict(TOPIC[T_ACT], T_ACT, {
+                            "header": _header(t), "episode": e, "step": step,
+                            "action": [float(x) for x in a]}, t + 1)
+                    if include_oracle:
+                        bag.write_dict(TOPIC[T_ORC], T_ORC, {
+                            "header": _header(t, ds.task), "episode": e, "step": step,
+                            "hidden": [float(x) for x in ds.hidden[i, step]],
+                            "reward": float(ds.rewards[i, step])}, t + 2)
+                t += STEP_NS
+            bag.write_dict(TOPIC[T_RET], T_RET, {
+                "header": _header(t), "task": ds.task, "episode": e, "length": length,
+                "return_value": float(ds.returns[i]), "labeller": labeller}, t)
+            t += STEP_NS
+    return Path(path)
+
+
+@dataclass
+class BagDatasetReport:
+    """What `load_bag_dataset` found: counts per reason, labellers seen, episodes used."""
+
+    episodes_seen: int = 0
+    episodes_used: int = 0
+    skipped: Counter = field(default_factory=Counter)
+    labellers: Counter = field(default_factory=Counter)
+    with_oracle: int = 0
+
+    def __str__(self) -> str:
+        skipped = ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items())) or "none"
+        return (f"{self.episodes_seen} episodes in the bags, {self.episodes_used} used; skipped: "
+                f"{skipped}; labellers: {dict(self.labellers)}; with oracle ground truth: "
+                f"{self.with_oracle}")
+
+
+def _read(path: Path):
+    obs, labels, oracle = defaultdict(list), defaultdict(list), defaultdict(dict)
+    for _, type_name, _, m in iter_decoded(path):
+        if type_name == T_OBS:
+            obs[(m.task, int(m.episode))].append(m)
+        elif type_name == T_RET:
+            labels[(m.task, int(m.episode))].append(m)
+        elif type_name == T_ORC:
+            oracle[int(m.episode)][int(m.step)] = m
+    return obs, labels, oracle
+
+
+def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None = None
+                     ) -> tuple[TrajectoryDataset, BagDatasetReport]:
+    """MIL bags from recorded episodes; see the module docstring for the validation rules.
+
+    A bag with observations is a recording; a bag with labels only is a labels bag whose labels
+    join the recordings by (task, episode) (an ambiguous join is an error). With several labellers
+    on one episode, `labeller` chooses; without it that is an error naming them.
+    """
+    recordings, extra_labels = [], defaultdict(list)
+    for path in paths:
+        obs, labels, oracle = _read(Path(path))
+        if obs:
+            recordings.append((Path(path), obs, labels, oracle))
+        else:
+            for key, ls in labels.items():
+                extra_labels[key].extend(ls)
+    if not recordings:
+        raise BagError(f"no EnvObservation messages in {', '.join(map(str, paths))}")
+    tasks = {k[0] for _, obs, _, _ in recordings for k in obs}
+    if task is None:
+        if len(tasks) != 1:
+            raise BagError(f"the bags hold episodes of several tasks {sorted(tasks)}; choose one")
+        task = tasks.pop()
+    info = task_info(task)
+    for key in extra_labels:
+        owners = [p for p, obs, _, _ in recordings if key in obs]
+        if len(owners) > 1:
+            raise BagError(f"labels-only bag labels {key}, which is in several recordings "
+                           f"({', '.join(map(str, owners))}); give them separately")
+
+    report = BagDatasetReport()
+    rows = []
+    for path, obs, labels, oracle in recordings:
+        for key in sorted(k for k in obs if k[0] == task):
+            report.episodes_seen += 1
+            row, reason = _episode(obs[key], labels.get(key, []) + extra_labels.get(key, []),
+                                   oracle.get(key[1], {}), info.state_size, labeller, report)
+            if reason:
+                report.skipped[reason] += 1
+            else:
+                rows.append(row)
+    report.episodes_used = len(rows)
+    if not rows:
+        raise BagError(f"no usable episode of task {task!r}: {report}")
+    return _stack(task, rows, info.state_size, report), report
+
+
+def _episode(messages, labels, oracle, state_size, labeller, report):
+    by_step: dict = {}
+    for m in messages:
+        state = np.asarray(m.state, dtype=np.float32)
+        if state.shape != (state_size,) or not np.all(np.isfinite(state)):
+            return None, "wrong_state_size"
+        if m.step in by_step:
+            prev = by_step[m.step]
+            if not (np.array_equal(prev[0], state) and prev[1] == (m.terminated, m.truncated)):
+                return None, "conflicting_duplicates"
+            continue
+        by_step[int(m.step)] = (state, (bool(m.terminated), bool(m.truncated)))
+    length = max(by_step)
+    if sorted(by_step) != list(range(length + 1)):
+        return None, "missing_steps"
+    if not any(by_step[length][1]) or any(any(by_step[t][1]) for t in range(length)) or length == 0:
+        return None, "no_final_observation"
+    names = sorted({m.labeller for m in labels})
+    if not labels:
+        return None, "no_label"
+    if labeller is not None:
+        chosen = [m for m in labels if m.labeller == labeller]
+        if not chosen:
+            return None, "no_label"
+    elif len(names) > 1:
+        raise BagError(f"episode {messages[0].episode} has labels from several labellers {names}; "
+                       f"choose one (--labeller)")
+    else:
+        chosen = labels
+    label = chosen[-1]
+    if int(label.length) != length:
+        return None, "label_length_mismatch"
+    report.labellers[label.labeller] += 1
+    states = np.stack([by_step[t][0] for t in range(length)])
+    have_oracle = all(t in oracle for t in range(length))
+    report.with_oracle += int(have_oracle)
+    rewards = np.array([oracle[t].reward for t in range(length)], np.float64) if have_oracle else None
+    hidden = (np.array([list(oracle[t].hidden) for t in range(length)], np.float64)
+              if have_oracle else None)
+    return (states, by_step[length][0], float(label.return_value), rewards, hidden,
+            int(messages[0].episode)), None
+
+
+def _stack(task, rows, state_size, report) -> TrajectoryDataset:
+    n, horizon = len(rows), max(len(r[0]) for r in rows)
+    k = max((r[4].shape[1] for r in rows if r[4] is not None), default=0)
+    states = np.zeros((n, horizon, state_size), np.float32)
+    final = np.zeros((n, state_size), np.float32)
+    lengths = np.zeros(n, np.int64)
+    returns = np.zeros(n, np.float64)
+    rewards = np.zeros((n, horizon), np.float64)
+    hidden = np.zeros((n, horizon, k), np.float64)
+    episodes = np.zeros(n, np.int64)
+    for i, (s, f, g, r, h, e) in enumerate(rows):
+        lengths[i] = len(s)
+        states[i, : len(s)] = s
+        final[i] = f
+        returns[i] = g
+        episodes[i] = e
+        if r is not None:
+            rewards[i, : len(s)] = r
+            hidden[i, : len(s), : h.shape[1]] = h
+    meta = {"source": "bags", "report": str(report), "episodes": episodes.tolist(),
+            "oracle_ground_truth": report.with_oracle == n}
+    return TrajectoryDataset(task, states, lengths, returns, rewards, hidden, final_states=final, meta=meta)

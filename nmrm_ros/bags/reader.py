@@ -1,0 +1,113 @@
+"""Reading bags: a rosbag2 directory (metadata.yaml + .mcap files) or a bare .mcap file.
+
+Every failure to read (missing file, not an MCAP, truncated, undecodable message) raises
+`BagError` with the path and what to do, never a bare library exception.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+
+class BagError(ValueError):
+    """A bag cannot be read as asked (missing, malformed, truncated, inconsistent)."""
+
+
+REPAIR_HINT = "if the recording was killed, `nmrm bag repair {path}` recovers what reached the disk"
+
+
+@dataclass
+class RawMessage:
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes
+
+
+def bag_files(path: str | Path) -> list:
+    """The .mcap files of a bag directory (from metadata.yaml) or of a bare .mcap path."""
+    path = Path(path)
+    if path.is_file():
+        if path.suffix != ".mcap":
+            raise BagError(f"{path}: not an .mcap file")
+        return [path]
+    if not path.is_dir():
+        raise BagError(f"no bag at {path}")
+    meta = path / "metadata.yaml"
+    if meta.is_file():
+        try:
+            info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+            files = [path / f for f in info["relative_file_paths"]]
+        except (yaml.YAMLError, KeyError, TypeError) as exc:
+            raise BagError(f"{meta}: malformed rosbag2 metadata ({exc})") from None
+        for f in files:
+            if not f.is_file():
+                raise BagError(f"{path}: metadata.yaml lists {f.name}, which is missing")
+        return files
+    files = sorted(path.glob("*.mcap"))
+    if not files:
+        raise BagError(f"{path}: no metadata.yaml and no .mcap file")
+    raise BagError(f"{path}: no metadata.yaml (the recording did not close); "
+                   + REPAIR_HINT.format(path=path))
+
+
+def _iter(path: str | Path, topics: list | None):
+    """(schema, channel, message) records of every file of a bag; errors -> BagError."""
+    for file in bag_files(path):
+        try:
+            with open(file, "rb") as f:
+                yield from make_reader(f).iter_messages(topics=topics, log_time_order=False)
+        except (McapError, EOFError, ValueError, OSError, AssertionError) as exc:
+            raise BagError(f"{file}: cannot read ({type(exc).__name__}: {exc}); "
+                           + REPAIR_HINT.format(path=path)) from None
+
+
+def iter_raw(path: str | Path, topics: list | None = None) -> Iterator[RawMessage]:
+    """Messages of a bag as CDR bytes, in file order."""
+    for schema, channel, message in _iter(path, topics):
+        yield RawMessage(channel.topic, schema.name if schema else "", message.log_time, message.data)
+
+
+def iter_decoded(path: str | Path, topics: list | None = None) -> Iterator[tuple]:
+    """(topic, type name, log time ns, decoded message) for every message of a bag. Decoded
+    messages are plain objects with the message's fields as attributes (mcap_ros2)."""
+    from mcap_ros2.decoder import DecoderFactory
+
+    factory = DecoderFactory()
+    decoders: dict = {}
+    for schema, channel, message in _iter(path, topics):
+        if schema is None:
+            raise BagError(f"{path}: channel {channel.topic} has no schema")
+        try:
+            if schema.name not in decoders:
+                decoders[schema.name] = factory.decoder_for(channel.message_encoding, schema)
+            decoded = decoders[schema.name](message.data)
+        except Exception as exc:  # noqa: BLE001 - any decoding failure is a malformed bag
+            raise BagError(f"{path}: cannot decode a {schema.name} message on {channel.topic}: "
+                           f"{exc}") from None
+        yield channel.topic, schema.name, message.log_time, decoded
+
+
+def bag_summary(path: str | Path) -> dict:
+    """topic -> (type name, message count), from the bag's index."""
+    out: dict = {}
+    for file in bag_files(path):
+        try:
+            with open(file, "rb") as f:
+                summary = make_reader(f).get_summary()
+        except (McapError, EOFError, ValueError, OSError) as exc:
+            raise BagError(f"{file}: cannot read ({exc}); " + REPAIR_HINT.format(path=path)) from None
+        if summary is None:
+            raise BagError(f"{file}: no summary section; " + REPAIR_HINT.format(path=path))
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        for cid, channel in summary.channels.items():
+            schema = summary.schemas.get(channel.schema_id)
+            name, n = out.get(channel.topic, (schema.name if schema else "", 0))
+            out[channel.topic] = (name, n + counts.get(cid, 0))
+    return out

@@ -1,0 +1,75 @@
+"""Message definitions (ros2msg schema text) and type hashes of the types our bags carry.
+
+The schema of a message is its .msg text followed by the definitions of the types it uses, each
+after a line of 80 '=' and a `MSG: pkg/Type` line (the rosbag2 / MCAP ros2msg convention), so that
+any reader (rosbag2, Foxglove, the `mcap` and `rosbags` libraries) can decode a bag without our
+packages installed. The nmrm_msgs definitions are read from the installed share directory (ament
+index) or, without ROS, from the source tree's msg_defs/.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from functools import lru_cache
+from pathlib import Path
+
+NMRM_TYPES = ("EnvObservation", "AgentAction", "RewardStep", "TrajectoryReturn", "OracleStep")
+
+#: Default topic -> type of the nmrm graph (same names as nmrm_ros.ros.topics, absolute).
+TOPIC_TYPES = {
+    "/nmrm/observation": "nmrm_msgs/msg/EnvObservation",
+    "/nmrm/action": "nmrm_msgs/msg/AgentAction",
+    "/nmrm/reward_step": "nmrm_msgs/msg/RewardStep",
+    "/nmrm/trajectory_return": "nmrm_msgs/msg/TrajectoryReturn",
+    "/nmrm/oracle_step": "nmrm_msgs/msg/OracleStep",
+}
+
+_HEADER = "builtin_interfaces/Time stamp\nstring frame_id\n"
+_TIME = "int32 sec\nuint32 nanosec\n"
+_SEPARATOR = "=" * 80
+
+
+def _share_dir(package: str) -> Path | None:
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        d = Path(prefix) / "share" / package
+        if prefix and d.is_dir():
+            return d
+    return None
+
+
+def _nmrm_msg_dir() -> Path:
+    share = _share_dir("nmrm_msgs")
+    if share is not None and (share / "msg").is_dir():
+        return share / "msg"
+    return Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
+
+
+def short_name(type_name: str) -> str:
+    """'nmrm_msgs/msg/EnvObservation' -> 'EnvObservation' (and check it is one of ours)."""
+    pkg, _, name = type_name.partition("/msg/")
+    if pkg != "nmrm_msgs" or name not in NMRM_TYPES:
+        raise ValueError(f"not an nmrm_msgs type: {type_name!r}")
+    return name
+
+
+@lru_cache(maxsize=None)
+def message_definition(type_name: str) -> str:
+    """The ros2msg schema text of an nmrm_msgs type, dependencies included."""
+    text = (_nmrm_msg_dir() / f"{short_name(type_name)}.msg").read_text()
+    return (f"{text.rstrip()}\n{_SEPARATOR}\nMSG: std_msgs/Header\n{_HEADER}"
+            f"{_SEPARATOR}\nMSG: builtin_interfaces/Time\n{_TIME}")
+
+
+@lru_cache(maxsize=None)
+def type_hash(type_name: str) -> str:
+    """The RIHS01 type hash from the installed type description, or '' without ROS."""
+    share = _share_dir("nmrm_msgs")
+    if share is None:
+        return ""
+    path = share / "msg" / f"{short_name(type_name)}.json"
+    try:
+        data = json.loads(path.read_text())
+        return data["type_hashes"][0]["hash_string"]
+    except (OSError, KeyError, IndexError, ValueError):
+        return ""
