@@ -23,6 +23,8 @@ EXECUTABLES = {
     "labeller_oracle": "nmrm_ros.nodes.labeller_oracle_node:main",
     "reward_model": "nmrm_ros.nodes.reward_model_node:main",
     "agent": "nmrm_ros.nodes.agent_node:main",
+    "recorder": "nmrm_ros.nodes.recorder_node:main",
+    "replay": "nmrm_ros.nodes.replay_node:main",
 }
 
 SHIM = """#!/bin/sh

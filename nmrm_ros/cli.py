@@ -82,6 +82,34 @@ def dataset_screen(
         typer.echo(f"wrote {ds.save(out)}")
 
 
+@dataset_app.command("generate")
+def dataset_generate(
+    task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
+    episodes: int = typer.Option(..., help="number of screened episodes to write"),
+    out: Path = typer.Option(..., help="bag directory to create"),
+    seed: int = typer.Option(0, help="seed of the simulator and the policy"),
+    key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
+) -> None:
+    """Screened episodes written as a bag with the live graph's topics (observations, actions,
+    oracle ground truth, oracle labels)."""
+    import time
+
+    from .bags import write_dataset_bag
+    from .datasets import generate_screened
+    from .tasks import check_task
+
+    _bad_input(check_task, task)
+    kwargs = {} if task == "lunar_lander" else {"key_fourth_class": key_fourth_class}
+    ds = generate_screened(task, episodes, seed=seed, **kwargs)
+    typer.echo(_dataset_summary(ds))
+    t0 = time.perf_counter()
+    try:
+        write_dataset_bag(ds, out)
+    except FileExistsError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    typer.echo(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
+
+
 @dataset_app.command("toy")
 def dataset_toy(
     name: str = typer.Option(..., help="toggle_switch | push_switch | dial"),
@@ -101,58 +129,98 @@ def dataset_toy(
 @app.command()
 def demo(
     task: str = typer.Option("key", help="navigation task"),
-    n: int = typer.Option(2000, help="screened trajectories to generate"),
+    live_episodes: int = typer.Option(30, help="episodes collected with the live graph"),
+    screened: int = typer.Option(2000, help="screened episodes generated in-process"),
     epochs: int = typer.Option(100, help="max training epochs"),
     seed: int = typer.Option(0, help="seed of data, split and weights"),
-    out: Path = typer.Option(Path("runs/demo"), help="where the checkpoint goes"),
+    out: Path = typer.Option(Path("runs/demo"), help="output directory (replaced)"),
 ) -> None:
-    """The main job on a small default task: screened data -> MIL training -> online reward.
+    """The main job, end to end on a small task:
 
-    1. generate a screened dataset with the task's oracle labels (random policy);
-    2. train a CSC Instance Space LSTM on the returns and evaluate it on the test split;
-    3. run the trained model online, one step at a time, on test trajectories and compare its
-       rewards with the oracle's.
+    1. collect episodes with the live graph (env_sim, random agent, oracle labeller, recorder)
+       into a bag;
+    2. generate screened episodes in-process into a second bag (random-policy episodes rarely
+       reach the Key task's rewards; screening balances the dataset);
+    3. train a CSC Instance Space LSTM from both bags;
+    4. serve it with the reward_model node on a replay of the live bag, record what it publishes,
+       and compare the served rewards with the oracle's ground truth recorded in the live bag.
     """
+    import shutil
     import time
 
     import numpy as np
 
+    from .bags import BagError, iter_decoded, load_bag_dataset, write_dataset_bag
     from .datasets import generate_screened
-    from .mil import OnlineRewardModel, load_train_config
-    from .mil.data import split_indices
+    from .launcher import parse_launch_file, run
+    from .mil import evaluate as evaluate_model, load_train_config
     from .mil.pipeline import train_and_evaluate
     from .tasks import NAVIGATION_TASKS
 
     if task not in NAVIGATION_TASKS:
         raise typer.BadParameter(f"the demo runs a navigation task {NAVIGATION_TASKS}, not {task!r}")
-    typer.echo(f"[1/3] screening {n} {task} trajectories (seed {seed})")
-    ds = generate_screened(task, n, seed=seed)
-    typer.echo("      " + _dataset_summary(ds).replace("\n", "\n      "))
+    launch_dir = _launch_dir()
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    live, gen, served, ckpt = out / "live", out / "screened", out / "served", out / "csc"
+    t0 = time.perf_counter()
+
+    typer.echo(f"[1/4] live graph: {live_episodes} {task} episodes -> {live}")
+    code = run(parse_launch_file(launch_dir / "collect.launch.yaml", {
+        "task": task, "episodes": str(live_episodes), "seed": str(seed), "out": str(live)}))
+    if code != 0:
+        raise typer.Exit(code)
+
+    typer.echo(f"[2/4] screened episodes: {screened} -> {gen}")
+    write_dataset_bag(generate_screened(task, screened, seed=seed), gen, first_episode=10**6)
+
+    typer.echo(f"[3/4] training csc_lstm from {live} + {gen}")
+    ds, report = load_bag_dataset([live, gen])
+    typer.echo(f"      {report}")
     cfg = load_train_config(task, max_epochs=epochs, seed=seed)
-    typer.echo(f"[2/3] training csc_lstm (lr {cfg.lr}, batch {cfg.batch_size}, <= {epochs} epochs)")
-    run = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=seed, out=out,
-                             data_source=f"screened:{task}:n={n}:seed={seed}")
-    m = run.test_metrics
-    typer.echo(f"      best epoch {run.train.best_epoch}, {run.train.seconds:.1f} s; test return MSE "
-               f"{m['return_mse']:.4f} (return variance {ds.returns.var():.3f}), reward MSE "
-               f"{m['reward_mse']:.5f}; checkpoint {run.checkpoint}")
-    typer.echo("[3/3] online reward model, one step at a time, on test trajectories of each class")
-    online = OnlineRewardModel(run.model)
-    test = ds.subset(split_indices(len(ds), seed)[2])
-    picks = [int(np.flatnonzero(test.classes == c)[0]) for c in np.unique(test.classes)][:6]
-    step_times = []
-    for i in picks:
-        online.reset()
-        predicted = []
-        for t in range(int(test.lengths[i])):
-            t0 = time.perf_counter()
-            r, _ = online.step(test.states[i, t])
-            step_times.append(time.perf_counter() - t0)
-            predicted.append(r)
-        err = np.mean((np.asarray(predicted) - test.rewards[i, : len(predicted)]) ** 2)
-        typer.echo(f"      class {int(test.classes[i])}: oracle return {test.returns[i]:7.3f}, "
-                   f"model return {sum(predicted):7.3f}, reward MSE {err:.5f}")
-    typer.echo(f"      online step: median {np.median(step_times) * 1e6:.0f} µs")
+    run_ = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=seed, out=ckpt,
+                              data_source=f"bags:{live},{gen}")
+    m = run_.test_metrics
+    typer.echo(f"      best epoch {run_.train.best_epoch}, {run_.train.seconds:.1f} s; test return MSE "
+               f"{m['return_mse']:.4f} (label variance {ds.returns.var():.3f}), reward MSE "
+               f"{m['reward_mse']:.5f}; checkpoint {run_.checkpoint}")
+
+    typer.echo(f"[4/4] reward_model node on a replay of {live} -> {served}")
+    code = run(parse_launch_file(launch_dir / "serve_replay.launch.yaml", {
+        "bag": str(live), "checkpoint": str(run_.checkpoint), "out": str(served)}))
+    if code != 0:
+        raise typer.Exit(code)
+    try:
+        served_rewards = {(int(msg.episode), int(msg.step)): float(msg.reward)
+                          for _, t, _, msg in iter_decoded(served) if t.endswith("RewardStep")}
+        truth, _ = load_bag_dataset([live])
+    except BagError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    errors, returns = [], []
+    for i, e in enumerate(truth.meta["episodes"]):
+        length = int(truth.lengths[i])
+        r = np.array([served_rewards[(e, t)] for t in range(length)])
+        errors.append((r - truth.rewards[i, :length]) ** 2)
+        returns.append((r.sum(), truth.returns[i]))
+    err = np.concatenate(errors)
+    live_eval = evaluate_model(run_.model, truth)
+    typer.echo(f"      {len(served_rewards)} rewards served for {len(returns)} episodes; served reward "
+               f"MSE vs oracle {err.mean():.5f} (offline model on the same episodes: "
+               f"{live_eval['reward_mse']:.5f})")
+    for g_model, g_true in sorted(returns, key=lambda r: -r[1])[:5]:
+        typer.echo(f"      episode return: oracle {g_true:6.2f}, served model {g_model:6.2f} "
+                   f"(the live episodes with the highest returns)")
+    typer.echo(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}/")
+
+
+def _launch_dir() -> Path:
+    """launch_scripts/ of the source tree, else of the installed share directory."""
+    here = Path(__file__).resolve().parents[1] / "launch_scripts"
+    if here.is_dir():
+        return here
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory("nmrm_ros")) / "launch_scripts"
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
@@ -177,6 +245,59 @@ def launch(
     raise typer.Exit(run(nodes, grace=grace))
 
 
+bag_app = typer.Typer(help="Inspect and repair MCAP bags.", no_args_is_help=True)
+app.add_typer(bag_app, name="bag")
+
+
+@bag_app.command("info")
+def bag_info(path: Path = typer.Argument(..., help="bag directory or .mcap file")) -> None:
+    """Topics, types and message counts of a bag, and its episodes."""
+    from .bags import BagError, bag_summary, load_bag_dataset
+
+    try:
+        summary = bag_summary(path)
+    except BagError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    for topic, (type_name, count) in summary.items():
+        typer.echo(f"{topic:28s} {type_name:34s} {count:8d}")
+    try:
+        _, report = load_bag_dataset([path])
+        typer.echo(f"episodes: {report}")
+    except BagError as exc:
+        typer.echo(f"episodes: {exc}")
+
+
+@bag_app.command("repair")
+def bag_repair(path: Path = typer.Argument(..., help="bag directory (or .mcap) of a killed recording")) -> None:
+    """Make a bag readable again after its recorder was killed: keeps every complete chunk."""
+    from .bags import BagError, load_bag_dataset, repair_bag
+
+    try:
+        report = repair_bag(path)
+    except BagError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    typer.echo(f"repaired {report.path}: {report.messages} messages recovered "
+               f"({', '.join(f'{t} {n}' for t, n in report.topics.items())}); "
+               f"damage: {report.damaged or 'none found'}; original kept as {report.backup}")
+    try:
+        _, episodes = load_bag_dataset([report.path])
+        typer.echo(f"episodes: {episodes}")
+    except BagError as exc:
+        typer.echo(f"episodes: {exc}")
+
+
+def _load_bags(paths: list, task: str | None, labeller: str | None):
+    """A dataset from recorded bags, with the validation report printed."""
+    from .bags import BagError, load_bag_dataset
+
+    try:
+        ds, report = load_bag_dataset(list(paths), task=task, labeller=labeller)
+    except BagError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    typer.echo(f"bags: {report}")
+    return ds, "bags:" + ",".join(str(p) for p in paths)
+
+
 def _load_or_generate(data: Path | None, task: str | None, n: int, seed: int):
     """A dataset from an .npz file, or generated (screened task / toy) from task, n and seed."""
     from .datasets import TOY_DATASETS, TrajectoryDataset, generate_screened, make_toy_dataset
@@ -198,6 +319,8 @@ def _load_or_generate(data: Path | None, task: str | None, n: int, seed: int):
 def train(
     task: str = typer.Option(None, help="task or toy dataset to generate data for (if no --data)"),
     data: Path = typer.Option(None, help="a dataset .npz (from `nmrm dataset ...`)"),
+    bag: list[Path] = typer.Option(None, help="bag(s) of recorded episodes (repeatable)"),
+    labeller: str = typer.Option(None, help="with --bag: whose labels to use if several labelled"),
     arch: str = typer.Option("csc_lstm", help="instance_nn | embedding_lstm | instance_lstm | csc_lstm"),
     out: Path = typer.Option(Path("runs/model"), help="checkpoint path (writes OUT.pt and OUT.json)"),
     n: int = typer.Option(5000, help="trajectories to generate (without --data)"),
@@ -215,7 +338,10 @@ def train(
 
     if arch not in ARCHITECTURES:
         raise typer.BadParameter(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
-    ds, source = _load_or_generate(data, task, n, data_seed)
+    if bag:
+        ds, source = _load_bags(bag, task, labeller)
+    else:
+        ds, source = _load_or_generate(data, task, n, data_seed)
     cfg = _bad_input(load_train_config, ds.task, config, max_epochs=epochs, lr=lr,
                      batch_size=batch_size, seed=seed)
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
@@ -232,6 +358,8 @@ def train(
 def evaluate(
     checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
     data: Path = typer.Option(None, help="dataset .npz (default: regenerate the training data)"),
+    bag: list[Path] = typer.Option(None, help="bag(s) of recorded episodes with OracleStep ground truth"),
+    labeller: str = typer.Option(None, help="with --bag: whose labels to use if several labelled"),
     split: str = typer.Option("test", help="test | val | train | all (of the dataset)"),
 ) -> None:
     """Test-split return MSE and reward MSE of a checkpoint (the paper's table metrics)."""
@@ -243,14 +371,21 @@ def evaluate(
         model, meta = load_checkpoint(checkpoint)
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc)) from None
-    if data is None:
+    if bag:
+        ds, _ = _load_bags(bag, meta.get("task"), labeller)
+        if not ds.meta.get("oracle_ground_truth"):
+            typer.echo("note: not every episode has OracleStep ground truth; reward MSE is against zeros there")
+    elif data is None:
         source = meta.get("data", {}).get("source", "")
         parts = source.split(":")
-        if len(parts) != 4 or parts[0] not in ("toy", "screened"):
+        if source.startswith("bags:"):
+            ds, _ = _load_bags(source[5:].split(","), meta.get("task"), None)
+        elif len(parts) != 4 or parts[0] not in ("toy", "screened"):
             raise typer.BadParameter(f"checkpoint data source {source!r} cannot be regenerated; give --data")
-        task, n, seed = parts[1], int(parts[2][2:]), int(parts[3][5:])
-        ds, _ = _load_or_generate(None, task, n, seed)
-        assert (task in TOY_DATASETS) == (parts[0] == "toy")
+        else:
+            task, n, seed = parts[1], int(parts[2][2:]), int(parts[3][5:])
+            ds, _ = _load_or_generate(None, task, n, seed)
+            assert (task in TOY_DATASETS) == (parts[0] == "toy")
     else:
         ds, _ = _load_or_generate(data, None, 0, 0)
     if ds.state_size != model.config.input_size:

@@ -24,7 +24,7 @@ from .schemas import message_definition, short_name, type_hash
 METADATA_VERSION = 9
 #: QoS the nmrm topics are offered with (see nmrm_ros.ros.topics), in rosbag2 v9 form.
 OFFERED_QOS = [{
-    "history": "keep_last", "depth": 1000, "reliability": "reliable", "durability": "volatile",
+    "history": "keep_all", "depth": 0, "reliability": "reliable", "durability": "volatile",
     "deadline": {"sec": 0, "nsec": 0}, "lifespan": {"sec": 0, "nsec": 0},
     "liveliness": "automatic", "liveliness_lease_duration": {"sec": 0, "nsec": 0},
     "avoid_ros_namespace_conventions": False,

@@ -38,6 +38,7 @@ PARAMETERS = {
 class AgentNode(Node):
     def __init__(self) -> None:
         self.exit_code = None
+        self.messages_received = 0
         super().__init__("agent")
         p = declare_parameters(self, PARAMETERS)
         from ..tasks import task_info
@@ -88,6 +89,7 @@ class AgentNode(Node):
             raise NodeError(f"cannot load {algo} policy {path}: {exc}") from None
 
     def act(self, msg, observed) -> None:
+        self.messages_received += 1
         if msg.terminated or msg.truncated:
             return
         key = (msg.episode, msg.step)

@@ -44,6 +44,7 @@ PARAMETERS = {
 class LabellerOracleNode(Node):
     def __init__(self) -> None:
         self.exit_code = None
+        self.messages_received = 0
         super().__init__("labeller_oracle")
         p = declare_parameters(self, PARAMETERS)
         from ..oracles import make_oracle
@@ -76,6 +77,7 @@ class LabellerOracleNode(Node):
             self.get_logger().warning(f"episode {msg.episode} not labelled ({self.broken} so far): {why}")
 
     def on_observation(self, msg: EnvObservation) -> None:
+        self.messages_received += 1
         try:
             if msg.task != self.task:
                 raise ValueError(f"observation of task {msg.task!r}, this labeller labels {self.task!r}")

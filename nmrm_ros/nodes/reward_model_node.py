@@ -44,6 +44,7 @@ PARAMETERS = {
 class RewardModelNode(Node):
     def __init__(self) -> None:
         self.exit_code = None
+        self.messages_received = 0
         super().__init__("reward_model")
         p = declare_parameters(self, PARAMETERS)
         from ..tasks import task_info
@@ -96,6 +97,7 @@ class RewardModelNode(Node):
                                       f"({self.broken} so far): {why}; waiting for the next step 0")
 
     def on_observation(self, msg: EnvObservation) -> None:
+        self.messages_received += 1
         try:
             if msg.task != self.task:
                 raise ValueError(f"observation of task {msg.task!r}, the model serves {self.task!r}")

@@ -130,19 +130,21 @@ EXIT_WITH_UPSTREAM = Param(False, "exit (code 0) once the input topic had publis
                                   "left, e.g. when env_sim finished its episodes (set in launch files)")
 
 
-def exit_with_upstream(node, subscription, period: float = 0.2) -> None:
-    """Make `node` end (exit_code 0) when `subscription` had publishers and has none left.
+def exit_with_upstream(node, subscriptions, period: float = 0.2) -> None:
+    """Make `node` end (exit_code 0) when its subscription(s) had publishers and have none left.
 
     This is how a launched graph finishes after env_sim's last episode, under `ros2 launch` as
-    well as `nmrm launch`: each consumer leaves once its producers have left.
+    well as `nmrm launch`: each consumer leaves once its producers have left. A producer that came
+    and went between two checks still counts as seen if the node's `messages_received` > 0.
     """
+    subs = subscriptions if isinstance(subscriptions, (list, tuple)) else [subscriptions]
     state = {"seen": False}
 
     def check() -> None:
-        count = subscription.get_publisher_count()
-        if count > 0:
+        count = sum(s.get_publisher_count() for s in subs)
+        if count > 0 or getattr(node, "messages_received", 0) > 0:
             state["seen"] = True
-        elif state["seen"] and getattr(node, "exit_code", None) is None:
+        if state["seen"] and count == 0 and getattr(node, "exit_code", None) is None:
             node.get_logger().info("input topic has no publishers left; exiting")
             node.exit_code = 0
 

@@ -1,8 +1,9 @@
 """Topic names and QoS of the nmrm graph (the contract documented in README.md).
 
 Names are relative ("nmrm/observation"), so a node's namespace or a remapping moves them.
-All topics are reliable and volatile, keep-last with a deep queue: the graph runs in lock-step
-(one observation in flight), and the labeller and recorder must not lose a step.
+All topics are reliable, volatile and keep-all: no message is ever dropped for lack of queue
+space. In lock-step only one observation is in flight; a replay publishes as fast as it can and
+the subscribers' queues absorb the difference (memory grows instead of messages being lost).
 """
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -16,8 +17,7 @@ ORACLE_STEP = "nmrm/oracle_step"
 ALL_TOPICS = (OBSERVATION, ACTION, REWARD_STEP, TRAJECTORY_RETURN, ORACLE_STEP)
 
 STEP_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
+    history=HistoryPolicy.KEEP_ALL,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )

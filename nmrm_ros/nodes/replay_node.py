@@ -1,0 +1,95 @@
+"""replay: publishes a bag's messages on their topics, as serialized messages.
+
+rate > 0: at the recorded timing scaled by `rate` (2.0 = twice as fast); rate = 0: as fast as
+possible; the topics are reliable and keep-all (nmrm_ros.ros.topics), so subscribers queue what
+they have not taken yet and nothing is lost. `topics` filters (empty = all); `loop` starts over at the end. Before
+the first message the node waits for `wait_for_subscribers` subscribers on every replayed topic.
+Without `loop`, the node exits with code 0 after the last message.
+"""
+
+from __future__ import annotations
+
+import time
+
+from rclpy.node import Node
+
+from ..bags.reader import BagError, bag_summary, iter_raw
+from ..ros.node_main import NodeError, Param, declare_parameters, run_node
+from ..ros.topics import STEP_QOS
+from .recorder_node import message_class
+
+PARAMETERS = {
+    "bag": Param("", "bag directory (or .mcap file) to replay"),
+    "rate": Param(0.0, "playback speed factor of the recorded timing; 0 = as fast as subscribers take"),
+    "topics": Param([""], "topics to replay (empty = all)"),
+    "loop": Param(False, "start over at the end"),
+    "wait_for_subscribers": Param(1, "subscribers to wait for on each replayed topic"),
+    "startup_timeout": Param(60.0, "seconds to wait for subscribers"),
+}
+
+
+class ReplayNode(Node):
+    def __init__(self) -> None:
+        self.exit_code = None
+        super().__init__("replay")
+        p = declare_parameters(self, PARAMETERS)
+        if not p["bag"]:
+            raise NodeError("parameter bag is required")
+        self.path = p["bag"]
+        try:
+            summary = bag_summary(self.path)
+        except BagError as exc:
+            raise NodeError(str(exc)) from None
+        wanted = [t for t in p["topics"] if t]
+        missing = [t for t in wanted if t not in summary]
+        if missing:
+            raise NodeError(f"topics {missing} are not in the bag (it has {sorted(summary)})")
+        self.topics = wanted or sorted(summary)
+        self.pubs = {t: self.create_publisher(message_class(summary[t][0]), t, STEP_QOS) for t in self.topics}
+        self.rate = float(p["rate"])
+        self.loop = bool(p["loop"])
+        self.wait_for = int(p["wait_for_subscribers"])
+        self.deadline = time.monotonic() + float(p["startup_timeout"])
+        self.published = 0
+        self.timer = self.create_timer(0.05, self.on_timer)
+        self.get_logger().info(f"replaying {self.path}: {', '.join(self.topics)} "
+                               f"(rate {self.rate or 'as fast as subscribers take'})")
+
+    def on_timer(self) -> None:
+        if any(pub.get_subscription_count() < self.wait_for for pub in self.pubs.values()):
+            if time.monotonic() > self.deadline:
+                self.get_logger().error("start-up timeout waiting for subscribers")
+                self.exit_code = 1
+            return
+        self.timer.cancel()
+        try:
+            while True:
+                self.play_once()
+                if not self.loop:
+                    break
+        except BagError as exc:
+            self.get_logger().error(str(exc))
+            self.exit_code = 1
+            return
+        self.get_logger().info(f"replayed {self.published} messages")
+        self.exit_code = 0
+
+    def play_once(self) -> None:
+        start_wall = time.monotonic()
+        first = None
+        for m in iter_raw(self.path, self.topics):
+            if self.rate > 0:
+                first = m.log_time_ns if first is None else first
+                delay = (m.log_time_ns - first) / 1e9 / self.rate - (time.monotonic() - start_wall)
+                if delay > 0:
+                    time.sleep(delay)
+            self.pubs[m.topic].publish(m.data)
+            self.published += 1
+
+
+def main(args=None) -> int:
+    return run_node(ReplayNode, "replay", __doc__.strip().splitlines()[0], PARAMETERS, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
