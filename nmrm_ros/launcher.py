@@ -161,7 +161,10 @@ def _node(body: dict, variables: dict, path: Path, params_dir: Path) -> NodeSpec
             flush()
             cmd += ["--params-file", substitute(p["from"], variables)]
         else:
-            value = yaml.safe_load(substitute(p["value"], variables))
+            if isinstance(p["value"], list):
+                value = [yaml.safe_load(substitute(v, variables)) for v in p["value"]]
+            else:
+                value = yaml.safe_load(substitute(p["value"], variables))
             group[p["name"]] = "" if value is None else value
     flush()
     for r in body.get("remap", []) or []:

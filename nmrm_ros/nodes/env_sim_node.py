@@ -10,8 +10,9 @@ Actions for anything but the awaited (episode, step), of the wrong size, NaN/inf
 action space are dropped with a counted warning, never stepped. If no valid action arrives within
 `action_timeout` s the observation is published again (the agent re-sends the same action for a
 repeated observation); after `max_retries` repeats the node gives up and exits with code 1.
-Before the first episode the node waits until `wait_for_subscribers` subscriptions match its
-observation topic and an action publisher is matched (up to `startup_timeout` s).
+Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
+them those of every node named in `wait_for_nodes`, match its observation topic and an action
+publisher is matched (up to `startup_timeout` s).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from rclpy.node import Node
 from nmrm_msgs.msg import AgentAction, EnvObservation
 
 from ..ros.messages import as_vector, to_float_list
-from ..ros.node_main import NodeError, Param, declare_parameters, run_node
+from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subscribed_nodes
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
@@ -35,6 +36,7 @@ PARAMETERS = {
     "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation"),
     "max_retries": Param(3, "re-publications of one observation before giving up (exit 1)"),
     "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting"),
+    "wait_for_nodes": Param([""], "names of nodes whose observation subscriptions to wait for"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher"),
 }
 
@@ -57,6 +59,7 @@ class EnvSimNode(Node):
         self.action_timeout = float(p["action_timeout"])
         self.max_retries = int(p["max_retries"])
         self.wait_for = int(p["wait_for_subscribers"])
+        self.wait_for_nodes = {n for n in p["wait_for_nodes"] if n}
         self.startup_deadline = time.monotonic() + float(p["startup_timeout"])
 
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
@@ -72,22 +75,26 @@ class EnvSimNode(Node):
         self.started = False
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"task {self.task}, seed {self.seed}, episodes {self.episodes or 'forever'}; "
-                               f"waiting for {self.wait_for} subscriber(s)")
+                               f"waiting for {self.wait_for} subscriber(s) "
+                               f"{sorted(self.wait_for_nodes) or ''}")
 
     # -- lifecycle -----------------------------------------------------------------------------
     def on_timer(self) -> None:
         now = time.monotonic()
         if not self.started:
             ready = (self.pub.get_subscription_count() >= self.wait_for
-                     and self.sub.get_publisher_count() >= 1)
+                     and self.sub.get_publisher_count() >= 1
+                     and subscribed_nodes(self, self.pub.topic_name) >= self.wait_for_nodes)
             if ready:
                 self.started = True
                 self.t_start = now
                 self.start_episode()
             elif now > self.startup_deadline:
+                missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
                 self.get_logger().error(
                     f"start-up timeout: {self.pub.get_subscription_count()} observation subscriber(s) "
-                    f"of {self.wait_for}, {self.sub.get_publisher_count()} action publisher(s)")
+                    f"of {self.wait_for}, missing nodes {sorted(missing)}, "
+                    f"{self.sub.get_publisher_count()} action publisher(s)")
                 self.exit_code = 1
             return
         if self.state is not None and now - self.sent_at > self.action_timeout:

@@ -4,7 +4,8 @@ rate > 0: at the recorded timing scaled by `rate` (2.0 = twice as fast); rate = 
 possible; the topics are reliable and keep-all (nmrm_ros.ros.topics), so subscribers queue what
 they have not taken yet and nothing is lost. `topics` filters (empty = all); `loop` starts over at the end. Before
 the first message the node waits for `wait_for_subscribers` subscribers on every replayed topic.
-Without `loop`, the node exits with code 0 after the last message.
+Without `loop`, the node exits with code 0 after the last message. Before the first message the
+node also waits for the subscriptions of every node named in `wait_for_nodes`.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import time
 from rclpy.node import Node
 
 from ..bags.reader import BagError, bag_summary, iter_raw
-from ..ros.node_main import NodeError, Param, declare_parameters, run_node
+from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subscribed_nodes
 from ..ros.topics import STEP_QOS
 from .recorder_node import message_class
 
@@ -24,6 +25,7 @@ PARAMETERS = {
     "topics": Param([""], "topics to replay (empty = all)"),
     "loop": Param(False, "start over at the end"),
     "wait_for_subscribers": Param(1, "subscribers to wait for on each replayed topic"),
+    "wait_for_nodes": Param([""], "names of nodes whose subscriptions to wait for (any replayed topic)"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers"),
 }
 
@@ -49,6 +51,7 @@ class ReplayNode(Node):
         self.rate = float(p["rate"])
         self.loop = bool(p["loop"])
         self.wait_for = int(p["wait_for_subscribers"])
+        self.wait_for_nodes = {n for n in p["wait_for_nodes"] if n}
         self.deadline = time.monotonic() + float(p["startup_timeout"])
         self.published = 0
         self.timer = self.create_timer(0.05, self.on_timer)
@@ -56,7 +59,9 @@ class ReplayNode(Node):
                                f"(rate {self.rate or 'as fast as subscribers take'})")
 
     def on_timer(self) -> None:
-        if any(pub.get_subscription_count() < self.wait_for for pub in self.pubs.values()):
+        subscribed = set().union(*(subscribed_nodes(self, pub.topic_name) for pub in self.pubs.values()))
+        if (any(pub.get_subscription_count() < self.wait_for for pub in self.pubs.values())
+                or not subscribed >= self.wait_for_nodes):
             if time.monotonic() > self.deadline:
                 self.get_logger().error("start-up timeout waiting for subscribers")
                 self.exit_code = 1

@@ -149,3 +149,8 @@ def exit_with_upstream(node, subscriptions, period: float = 0.2) -> None:
             node.exit_code = 0
 
     node.create_timer(period, check)
+
+
+def subscribed_nodes(node, topic: str) -> set:
+    """Names of the nodes with a subscription on `topic` (fully qualified name)."""
+    return {info.node_name for info in node.get_subscriptions_info_by_topic(topic)}
