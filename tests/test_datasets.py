@@ -46,7 +46,9 @@ def _class_limits_respected(ds, key_fourth_class=False):
     spec = screening_spec(ds.task, key_fourth_class)
     classes, counts = np.unique(ds.classes, return_counts=True)
     for c, k in zip(classes.tolist(), counts.tolist()):
-        assert k <= spec.max_count(c, len(ds)), (ds.task, c, k)
+        p = spec.default if spec.limits is None else spec.limits.get(c, spec.default)
+        # the paper's rule: a trajectory is kept only while its class holds fewer than p * N
+        assert k - 1 < max(p * len(ds), 1), (ds.task, c, k)
 
 
 @pytest.mark.parametrize("task,n", [("timer", 1000), ("moving", 400), ("key", 400),
@@ -69,6 +71,11 @@ def test_screening_same_seed_same_dataset():
     assert a.states.tobytes() == b.states.tobytes()
     assert a.actions.tobytes() == b.actions.tobytes()
     assert a.states.tobytes() != c.states.tobytes()
+
+
+def test_small_targets():
+    for n in (1, 3, 165):  # ceil(p * n) per class always adds up to at least n
+        assert len(generate_screened("key", n, seed=0)) == n
 
 
 def test_key_fourth_class():

@@ -3,9 +3,8 @@
 Each task has a trajectory classifier C_k and a limit p_k on the fraction of the dataset any class
 may take. Trajectories are drawn (uniform-random policy for the navigation tasks, vectorised over
 `batch` agents at once), classified, and examined in draw order: a trajectory is kept while its
-class holds fewer than max(1, floor(p_k * n_target)) trajectories, otherwise discarded, until the
-dataset holds n_target. (The floor of 1 only matters for small test datasets, where p_k * n_target
-< 1 would otherwise admit nothing.) For Lunar Lander, a pool of trajectories from any policy is screened the same way
+class holds fewer than p_k * n_target trajectories (so at most ceil(p_k * n_target), and at least
+1), otherwise discarded, until the dataset holds n_target. For Lunar Lander, a pool of trajectories from any policy is screened the same way
 (`screen_pool`).
 
 Class ids (int64) and their meaning:
@@ -47,7 +46,7 @@ class ScreeningSpec:
 
     def max_count(self, cls: int, n_target: int) -> int:
         p = self.default if self.limits is None else self.limits.get(cls, self.default)
-        return max(1, math.floor(p * n_target + 1e-9))
+        return max(1, math.ceil(p * n_target - 1e-9))
 
 
 def screening_spec(task: str, key_fourth_class: bool = False) -> ScreeningSpec:
@@ -171,6 +170,10 @@ def screen_navigation(task: str, n_target: int = 5000, seed: int = 0, batch: int
     rng = np.random.default_rng(seed)
     oracle = make_oracle(task)
     spec = screening_spec(task, key_fourth_class)
+    capacity = sum(spec.max_count(c, n_target) for c in range(spec.n_classes))
+    if capacity < n_target:
+        raise ValueError(f"{task}: the class limits admit at most {capacity} trajectories, "
+                         f"fewer than the {n_target} asked for")
     screener = Screener(spec, n_target)
     parts = []
     start = time.perf_counter()
