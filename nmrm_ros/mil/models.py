@@ -82,6 +82,20 @@ class MILOutput(NamedTuple):
     hidden: torch.Tensor  # (B, T, k)
 
 
+class FastDropout(nn.Module):
+    """Inverted dropout (as nn.Dropout) with the mask drawn by `rand_like`, about twice as fast as
+    torch's bernoulli_ on CPU, which was 45% of a training step (bench/train_speed.py)."""
+
+    def __init__(self, p: float) -> None:
+        super().__init__()
+        self.p = float(p)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.training or self.p == 0.0:
+            return x
+        return x * (torch.rand_like(x) >= self.p) * (1.0 / (1.0 - self.p))
+
+
 def _mlp(sizes: list, dropout: float, final_linear: bool) -> nn.Sequential:
     """FC + ReLU + Dropout for each consecutive pair of sizes; the last one plain FC if
     final_linear."""
@@ -92,7 +106,7 @@ def _mlp(sizes: list, dropout: float, final_linear: bool) -> nn.Sequential:
             break
         layers.append(nn.ReLU())
         if dropout > 0:
-            layers.append(nn.Dropout(dropout))
+            layers.append(FastDropout(dropout))
     return nn.Sequential(*layers)
 
 
