@@ -130,7 +130,7 @@ def dataset_toy(
 def demo(
     task: str = typer.Option("key", help="navigation task"),
     live_episodes: int = typer.Option(30, help="episodes collected with the live graph"),
-    screened: int = typer.Option(2000, help="screened episodes generated in-process"),
+    screened: int = typer.Option(1500, help="screened episodes generated in-process"),
     epochs: int = typer.Option(100, help="max training epochs"),
     seed: int = typer.Option(0, help="seed of data, split and weights"),
     out: Path = typer.Option(Path("runs/demo"), help="output directory (replaced)"),
@@ -141,7 +141,8 @@ def demo(
        into a bag;
     2. generate screened episodes in-process into a second bag (random-policy episodes rarely
        reach the Key task's rewards; screening balances the dataset);
-    3. train a CSC Instance Space LSTM from both bags;
+    3. train a CSC Instance Space LSTM from both bags and the task's sample bag in bags/ (if
+       there is one);
     4. serve it with the reward_model node on a replay of the live bag, record what it publishes,
        and compare the served rewards with the oracle's ground truth recorded in the live bag.
     """
@@ -174,12 +175,14 @@ def demo(
     typer.echo(f"[2/4] screened episodes: {screened} -> {gen}")
     write_dataset_bag(generate_screened(task, screened, seed=seed), gen, first_episode=10**6)
 
-    typer.echo(f"[3/4] training csc_lstm from {live} + {gen}")
-    ds, report = load_bag_dataset([live, gen])
+    sample = _repo_dir("bags") / f"{task}_screened" if _repo_dir("bags") else None
+    sources = [live, gen] + ([sample] if sample is not None and sample.is_dir() else [])
+    typer.echo(f"[3/4] training csc_lstm from {' + '.join(map(str, sources))}")
+    ds, report = load_bag_dataset(sources)
     typer.echo(f"      {report}")
     cfg = load_train_config(task, max_epochs=epochs, seed=seed)
     run_ = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=seed, out=ckpt,
-                              data_source=f"bags:{live},{gen}")
+                              data_source="bags:" + ",".join(map(str, sources)))
     m = run_.test_metrics
     typer.echo(f"      best epoch {run_.train.best_epoch}, {run_.train.seconds:.1f} s; test return MSE "
                f"{m['return_mse']:.4f} (label variance {ds.returns.var():.3f}), reward MSE "
@@ -213,10 +216,18 @@ def demo(
     typer.echo(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}/")
 
 
+def _repo_dir(name: str) -> Path | None:
+    """A top-level folder of the source tree (the working directory's, or this file's), if any."""
+    for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
+        if (base / name).is_dir() and (base / "package.xml").is_file():
+            return base / name
+    return None
+
+
 def _launch_dir() -> Path:
     """launch_scripts/ of the source tree, else of the installed share directory."""
-    here = Path(__file__).resolve().parents[1] / "launch_scripts"
-    if here.is_dir():
+    here = _repo_dir("launch_scripts")
+    if here is not None:
         return here
     from ament_index_python.packages import get_package_share_directory
 
