@@ -1,6 +1,5 @@
 """MCAP bags: recording the live graph, clean and hard stops, repair, replay, training from bags."""
 
-import os
 import signal
 import time
 

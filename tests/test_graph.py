@@ -4,7 +4,6 @@ from collections import Counter
 
 import numpy as np
 import pytest
-import torch
 
 from graph_helpers import Capture, episodes_of, finish, launch, start
 from nmrm_msgs.msg import EnvObservation
@@ -50,7 +49,7 @@ def run_graph(capture, *arguments):
 def check_lockstep(capture, task="key"):
     eps = episodes_of(capture.msgs["observation"])
     assert sorted(eps) == list(range(EPISODES))
-    for e, (states, steps, flags) in eps.items():
+    for e, (_, steps, flags) in eps.items():
         assert steps == list(range(101)), f"episode {e}: steps {steps[:5]}..."
         assert flags[-1] == (False, True) and all(f == (False, False) for f in flags[:-1])
     actions = Counter((m.episode, m.step) for m in capture.msgs["action"])
@@ -166,7 +165,7 @@ def test_env_sim_drops_bad_actions(capture):
     assert len(capture.msgs["observation"]) == 1  # nothing was stepped
     for t in range(100):
         pub.publish(AgentAction(episode=0, step=t, action=[1.0]))
-        assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= t + 2, 10)
+        assert capture.spin_until(lambda n=t + 2: len(capture.msgs["observation"]) >= n, 10)
     code, out = finish(env)
     assert code == 0 and "4 action(s) dropped" in out
     states = np.array([list(m.state) for m in capture.msgs["observation"]])

@@ -48,7 +48,7 @@ def test_online_step_equals_batched_forward(arch, task, d):
     states = np.random.default_rng(1).normal(size=(60, d)).astype(np.float32)
     rewards, hidden = batched_reference(model, states)
     online = OnlineRewardModel(model)
-    for episode in range(2):  # reset gives the same trajectory again
+    for _ in range(2):  # reset gives the same trajectory again
         online.reset()
         for t in range(len(states)):
             r, h = online.step(states[t])

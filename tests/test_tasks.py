@@ -80,7 +80,7 @@ def test_lunar_lander_rest_does_not_end_episode_but_leaving_screen_does():
     env = make_env("lunar_lander")
     obs, _ = env.reset(seed=0)
     # engines off: the lander falls, lands (or crashes) and rests, the episode goes on to T
-    for t in range(500):
+    for _ in range(500):
         obs, _, terminated, truncated, _ = env.step(np.array([-1.0, 0.0], np.float32))
         assert not terminated
     assert truncated and (obs[6] == 1.0 or obs[7] == 1.0)

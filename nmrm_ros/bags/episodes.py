@@ -139,7 +139,7 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
 
     report = BagDatasetReport()
     rows = []
-    for path, obs, labels, oracle in recordings:
+    for _, obs, labels, oracle in recordings:
         for key in sorted(k for k in obs if k[0] == task):
             report.episodes_seen += 1
             row, reason = _episode(obs[key], labels.get(key, []) + extra_labels.get(key, []),

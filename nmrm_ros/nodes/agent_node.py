@@ -20,7 +20,7 @@ from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep
 
 from ..ros.messages import as_vector
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, run_node)
+                             exit_with_upstream, require_task, run_node)
 from ..ros.topics import ACTION, OBSERVATION, REWARD_STEP, STEP_QOS
 
 PARAMETERS = {
@@ -41,12 +41,7 @@ class AgentNode(Node):
         self.messages_received = 0
         super().__init__("agent")
         p = declare_parameters(self, PARAMETERS)
-        from ..tasks import task_info
-
-        try:
-            self.info = task_info(p["task"])
-        except ValueError as exc:
-            raise NodeError(str(exc)) from None
+        self.info = require_task(p["task"])
         self.discrete = self.info.discrete and not p["continuous"]
         self.rng = np.random.default_rng(int(p["seed"]))
         self.policy = p["policy"]

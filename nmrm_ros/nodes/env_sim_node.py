@@ -25,7 +25,7 @@ from rclpy.node import Node
 from nmrm_msgs.msg import AgentAction, EnvObservation
 
 from ..ros.messages import as_vector, to_float_list
-from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subscribed_nodes
+from ..ros.node_main import Param, declare_parameters, require_task, run_node, subscribed_nodes
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
@@ -45,12 +45,9 @@ class EnvSimNode(Node):
     def __init__(self) -> None:
         super().__init__("env_sim")
         p = declare_parameters(self, PARAMETERS)
-        from ..tasks import make_env, task_info
+        from ..tasks import make_env
 
-        try:
-            self.info = task_info(p["task"])
-        except ValueError as exc:
-            raise NodeError(str(exc)) from None
+        self.info = require_task(p["task"])
         self.task = p["task"]
         self.env = make_env(self.task, continuous=p["continuous"])
         self.discrete = self.info.discrete and not p["continuous"]

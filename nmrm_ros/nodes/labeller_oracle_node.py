@@ -28,8 +28,8 @@ from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryReturn
 
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import as_vector, to_float_list
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, run_node)
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, Param, declare_parameters,
+                             exit_with_upstream, require_task, run_node)
 from ..ros.topics import OBSERVATION, ORACLE_STEP, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -48,12 +48,7 @@ class LabellerOracleNode(Node):
         super().__init__("labeller_oracle")
         p = declare_parameters(self, PARAMETERS)
         from ..oracles import make_oracle
-        from ..tasks import task_info
-
-        try:
-            self.info = task_info(p["task"])
-        except ValueError as exc:
-            raise NodeError(str(exc)) from None
+        self.info = require_task(p["task"])
         self.task = p["task"]
         self.oracle = make_oracle(self.task)
         self.tracker = self.oracle.tracker()
@@ -63,7 +58,6 @@ class LabellerOracleNode(Node):
         self.rng = np.random.default_rng(int(p["noise_seed"]))
         self.labeller = f"oracle/{self.task}"
         self.labelled = 0
-        self.broken = 0
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
         self.step_pub = self.create_publisher(OracleStep, ORACLE_STEP, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
@@ -71,10 +65,10 @@ class LabellerOracleNode(Node):
             exit_with_upstream(self, self.sub)
 
     def mark_broken(self, msg: EnvObservation, why: str, newly: bool | None = None) -> None:
-        """Count and log an episode the first time it breaks."""
+        """Log an episode the first time it breaks (the follower counts it)."""
         if newly if newly is not None else self.follower.break_episode(msg.episode):
-            self.broken += 1
-            self.get_logger().warning(f"episode {msg.episode} not labelled ({self.broken} so far): {why}")
+            self.get_logger().warning(f"episode {msg.episode} not labelled "
+                                      f"({self.follower.broken_episodes} so far): {why}")
 
     def on_observation(self, msg: EnvObservation) -> None:
         self.messages_received += 1
@@ -113,7 +107,7 @@ class LabellerOracleNode(Node):
             self.step_pub.publish(step)
 
     def close(self) -> None:
-        self.get_logger().info(f"labelled {self.labelled} episode(s), {self.broken} broken")
+        self.get_logger().info(f"labelled {self.labelled} episode(s), {self.follower.broken_episodes} broken")
 
 
 def main(args=None) -> int:

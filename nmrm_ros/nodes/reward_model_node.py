@@ -29,7 +29,7 @@ from nmrm_msgs.msg import EnvObservation, RewardStep
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import as_vector, to_float_list
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, run_node)
+                             exit_with_upstream, require_task, run_node)
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
 
 PARAMETERS = {
@@ -47,18 +47,13 @@ class RewardModelNode(Node):
         self.messages_received = 0
         super().__init__("reward_model")
         p = declare_parameters(self, PARAMETERS)
-        from ..tasks import task_info
-
         mode = p["mode"]
         if mode == "oracle":
             from ..oracles import make_oracle
 
             if not p["task"]:
                 raise NodeError("mode oracle needs the parameter task")
-            try:
-                self.info = task_info(p["task"])
-            except ValueError as exc:
-                raise NodeError(str(exc)) from None
+            self.info = require_task(p["task"])
             self.stepper = make_oracle(p["task"]).tracker()
             self.source = p["source"] or "oracle"
         elif mode == "model":
@@ -68,7 +63,7 @@ class RewardModelNode(Node):
                 raise NodeError("mode model needs the parameter checkpoint")
             try:
                 model, meta = load_checkpoint(p["checkpoint"], task=p["task"] or None)
-                self.info = task_info(meta["task"])
+                self.info = require_task(meta["task"])
             except (CheckpointError, ValueError) as exc:
                 raise NodeError(str(exc)) from None
             if model.config.input_size != self.info.state_size:
@@ -81,7 +76,6 @@ class RewardModelNode(Node):
         self.task = self.info.name
         self.follower = EpisodeFollower()
         self.last: RewardStep | None = None
-        self.broken = 0
         self.compute_s: list = []
         self.pub = self.create_publisher(RewardStep, REWARD_STEP, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
@@ -90,11 +84,11 @@ class RewardModelNode(Node):
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}")
 
     def mark_broken(self, msg: EnvObservation, why: str, newly: bool | None = None) -> None:
-        """Count and log an episode the first time it breaks."""
+        """Log an episode the first time it breaks (the follower counts it)."""
         if newly if newly is not None else self.follower.break_episode(msg.episode):
-            self.broken += 1
             self.get_logger().warning(f"episode {msg.episode} broken at step {msg.step} "
-                                      f"({self.broken} so far): {why}; waiting for the next step 0")
+                                      f"({self.follower.broken_episodes} so far): {why}; "
+                                      f"waiting for the next step 0")
 
     def on_observation(self, msg: EnvObservation) -> None:
         self.messages_received += 1
@@ -132,7 +126,7 @@ class RewardModelNode(Node):
         if self.compute_s:
             us = np.asarray(self.compute_s) * 1e6
             self.get_logger().info(f"{len(us)} steps, compute per step: median {np.median(us):.1f} µs, "
-                                   f"p99 {np.percentile(us, 99):.1f} µs; {self.broken} broken episode(s)")
+                                   f"p99 {np.percentile(us, 99):.1f} µs; {self.follower.broken_episodes} broken episode(s)")
 
 
 def main(args=None) -> int:

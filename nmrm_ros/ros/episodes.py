@@ -36,11 +36,14 @@ class EpisodeFollower:
         self.broken = False
         #: True if the last classify/break_episode call broke a so-far-intact episode
         self.just_broke = False
+        #: episodes broken so far (each counted once)
+        self.broken_episodes = 0
 
     def break_episode(self, episode: int) -> bool:
         """Mark `episode` broken (e.g. its state was invalid); True if it was not broken before."""
         newly = not (self.broken and self.episode == episode)
         self.episode, self.broken, self.just_broke = episode, True, newly
+        self.broken_episodes += int(newly)
         return newly
 
     def classify(self, episode: int, step: int, state: np.ndarray) -> Kind:

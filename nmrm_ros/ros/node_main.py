@@ -154,3 +154,13 @@ def exit_with_upstream(node, subscriptions, period: float = 0.2) -> None:
 def subscribed_nodes(node, topic: str) -> set:
     """Names of the nodes with a subscription on `topic` (fully qualified name)."""
     return {info.node_name for info in node.get_subscriptions_info_by_topic(topic)}
+
+
+def require_task(task: str):
+    """The TaskInfo of `task`, or a NodeError naming the known tasks."""
+    from ..tasks import task_info
+
+    try:
+        return task_info(task)
+    except ValueError as exc:
+        raise NodeError(str(exc)) from None
