@@ -42,10 +42,10 @@ def _rosbags_messages(path):
 def test_live_graph_recorded_exactly(capture, tmp_path):
     """The collect graph's recording holds exactly what was published, for rosbags and mcap."""
     out = tmp_path / "live"
-    proc = subprocess.Popen([executable("nmrm"), "launch", str(LAUNCH), "episodes:=3", f"out:={out}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    # env_sim waits for 3 observation subscribers (labeller, agent, recorder); the capture may join late,
-    # so compare on what both saw: the capture keeps everything it saw from its start
+    # env_sim waits for labeller, agent, recorder and this capture (4 observation subscribers)
+    proc = subprocess.Popen([executable("nmrm"), "launch", str(LAUNCH), "episodes:=3", f"out:={out}",
+                             "wait_for_subscribers:=4"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
     capture.spin_until(lambda: proc.poll() is not None, 90)
     code, log = finish(proc)
     capture.spin_for(0.3)
@@ -61,11 +61,8 @@ def test_live_graph_recorded_exactly(capture, tmp_path):
         summary = make_reader(f).get_summary()
         assert summary.statistics.message_count == len(recorded)
         assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
-    live = {(m.episode, m.step): list(m.state) for m in capture.msgs["observation"]}
-    assert len(live) > 0
-    for m in obs:
-        if (m.episode, m.step) in live:
-            assert list(map(float, m.state)) == live[(m.episode, m.step)]
+    live = [(m.episode, m.step, list(m.state)) for m in capture.msgs["observation"]]
+    assert live == [(m.episode, m.step, list(map(float, m.state))) for m in obs]
     decoded = [m for t, _, _, m in iter_decoded(out) if t == "/nmrm/trajectory_return"]
     assert [m.return_value for m in decoded] == [m.return_value for m in labels]
 
