@@ -170,3 +170,37 @@ def test_env_sim_drops_bad_actions(capture):
     assert code == 0 and "4 action(s) dropped" in out
     states = np.array([list(m.state) for m in capture.msgs["observation"]])
     assert states.shape == (101, 2) and capture.msgs["observation"][-1].truncated
+
+
+def test_agent_runs_a_saved_sb3_policy(capture, tmp_path):
+    """The agent node loads a stable-baselines3 DQN saved for the augmented Key state (2 + 1) and
+    answers each RewardStep with the policy's deterministic action."""
+    import gymnasium as gym
+    from stable_baselines3 import DQN
+
+    from nmrm_msgs.msg import RewardStep
+    from nmrm_ros.ros.topics import REWARD_STEP
+
+    class AugmentedKeySpaces(gym.Env):  # only gives DQN the spaces of [x, y, h]
+        observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float32)
+        action_space = gym.spaces.Discrete(5)
+
+    policy = DQN("MlpPolicy", AugmentedKeySpaces(), policy_kwargs={"net_arch": [16]}, seed=0)
+    policy.save(tmp_path / "dqn.zip")
+    agent = start("agent", task="key", policy="sb3", policy_path=str(tmp_path / "dqn.zip"))
+    pub = capture.publisher(RewardStep, REWARD_STEP)
+    assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)  # agent + capture
+    rng = np.random.default_rng(0)
+    states = rng.uniform(0, 1, (20, 3)).astype(np.float32)
+    for t, s in enumerate(states):
+        pub.publish(RewardStep(episode=0, step=t, augmented_state=s.tolist()))
+    pub.publish(RewardStep(episode=0, step=20, augmented_state=[0.0, 0.0, 0.0], truncated=True))
+    assert capture.spin_until(lambda: len(capture.msgs["action"]) >= 20, 30)
+    capture.spin_for(0.3)
+    agent.send_signal(2)
+    code, out = finish(agent)
+    assert code == 0, out
+    got = {(m.episode, m.step): m.action[0] for m in capture.msgs["action"]}
+    assert len(got) == 20  # none for the final step
+    expected, _ = policy.predict(states, deterministic=True)
+    assert [got[(0, t)] for t in range(20)] == [float(a) for a in expected]
