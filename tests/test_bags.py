@@ -236,3 +236,19 @@ def test_labels_only_bag_and_choosing_a_labeller(tmp_path):
     assert ds.returns.tolist() == [1.0] and report.skipped == {"no_label": 1}
     only_people = load_bag_dataset([rec, _bag_with(tmp_path / "p2", {}, [(1, 4, 5.0, "bob")])])[0]
     assert only_people.returns.tolist() == [1.0, 5.0]
+
+
+def test_replay_at_recorded_timing(capture, tmp_path):
+    """rate 10 replays a 1.01 s recording (101 observations 10 ms apart) in about 0.1 s, in order."""
+    ds = generate_screened("timer", 1, seed=0)
+    path = write_dataset_bag(ds, tmp_path / "bag", include_oracle=False)
+    rp = start("replay", bag=str(path), rate=10.0, topics="['/nmrm/observation']")
+    assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= 1, 30)
+    t0 = time.monotonic()
+    assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= 101, 30)
+    elapsed = time.monotonic() - t0
+    code, log = finish(rp)
+    assert code == 0, log
+    assert 0.07 < elapsed < 1.0, elapsed
+    assert [m.step for m in capture.msgs["observation"]] == list(range(101))
+    assert capture.msgs["action"] == [] and capture.msgs["label"] == []  # filtered out
