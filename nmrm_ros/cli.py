@@ -210,9 +210,9 @@ def demo(
     typer.echo(f"      {len(served_rewards)} rewards served for {len(returns)} episodes; served reward "
                f"MSE vs oracle {err.mean():.5f} (offline model on the same episodes: "
                f"{live_eval['reward_mse']:.5f})")
+    typer.echo("      the 5 live episodes with the highest returns:")
     for g_model, g_true in sorted(returns, key=lambda r: -r[1])[:5]:
-        typer.echo(f"      episode return: oracle {g_true:6.2f}, served model {g_model:6.2f} "
-                   f"(the live episodes with the highest returns)")
+        typer.echo(f"      return: oracle {g_true:6.2f}, served model {g_model:6.2f}")
     typer.echo(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}/")
 
 
