@@ -24,7 +24,7 @@ def ros_domain(monkeypatch) -> int:
     base = int(os.environ.get("ROS_DOMAIN_ID", "0"))
     domain = 1 + (base * 7 + os.getpid() + next(_domain_counter) * 13) % 200
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"))
     return domain
 
 

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from ament_index_python.packages import get_package_prefix
-from rclpy.executors import SingleThreadedExecutor
+
+from nmrm_ros.ros.node_main import _executor
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, OracleStep, RewardStep, TrajectoryReturn
 from nmrm_ros.ros.topics import (ACTION, OBSERVATION, ORACLE_STEP, REWARD_STEP, STEP_QOS,
@@ -51,7 +52,7 @@ class Capture:
                                 ("label", TrajectoryReturn, TRAJECTORY_RETURN),
                                 ("oracle_step", OracleStep, ORACLE_STEP)):
             self.node.create_subscription(typ, topic, self.msgs[key].append, STEP_QOS)
-        self.executor = SingleThreadedExecutor()
+        self.executor = _executor()
         self.executor.add_node(self.node)
 
     def publisher(self, typ, topic):

@@ -44,8 +44,8 @@ def test_live_graph_recorded_exactly(capture, tmp_path):
     out = tmp_path / "live"
     # env_sim waits for labeller, agent, recorder and this capture (4 observation subscribers)
     proc = subprocess.Popen([executable("nmrm"), "launch", str(LAUNCH), "episodes:=3", f"out:={out}",
-                             "wait_for_subscribers:=4"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+                             "wait_for_subscribers:=4", "start_delay:=1.0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     capture.spin_until(lambda: proc.poll() is not None, 90)
     code, log = finish(proc)
     capture.spin_for(0.3)

@@ -37,7 +37,8 @@ def key_checkpoint(tmp_path_factory):
 def run_graph(capture, *arguments):
     """Launch the graph with one extra subscriber (the capture) and wait for it to finish."""
     # env_sim waits for 3 observation subscribers: labeller, reward model and this capture
-    proc = launch(*arguments, f"episodes:={EPISODES}", "wait_for_subscribers:=3")
+    # and 1 s more, so that the capture also matches the reward model's and labeller's publishers
+    proc = launch(*arguments, f"episodes:={EPISODES}", "wait_for_subscribers:=3", "start_delay:=1.0")
     capture.spin_until(lambda: proc.poll() is not None, 90)
     code, out = finish(proc, timeout=30)
     capture.spin_for(0.3)

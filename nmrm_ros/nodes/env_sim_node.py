@@ -12,7 +12,8 @@ action space are dropped with a counted warning, never stepped. If no valid acti
 repeated observation); after `max_retries` repeats the node gives up and exits with code 1.
 Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
 them those of every node named in `wait_for_nodes`, match its observation topic and an action
-publisher is matched (up to `startup_timeout` s).
+publisher is matched (up to `startup_timeout` s), then `start_delay` s more (time for the other
+nodes' endpoints, e.g. a viewer of the reward topic, to match each other).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ PARAMETERS = {
     "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting"),
     "wait_for_nodes": Param([""], "names of nodes whose observation subscriptions to wait for"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher"),
+    "start_delay": Param(0.0, "seconds to wait once ready, so late endpoints of other nodes match"),
 }
 
 
@@ -58,6 +60,8 @@ class EnvSimNode(Node):
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_for_nodes = {n for n in p["wait_for_nodes"] if n}
         self.startup_deadline = time.monotonic() + float(p["startup_timeout"])
+        self.start_delay = float(p["start_delay"])
+        self.ready_at = None
 
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
         self.sub = self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS)
@@ -82,11 +86,13 @@ class EnvSimNode(Node):
             ready = (self.pub.get_subscription_count() >= self.wait_for
                      and self.sub.get_publisher_count() >= 1
                      and subscribed_nodes(self, self.pub.topic_name) >= self.wait_for_nodes)
-            if ready:
+            if ready and self.ready_at is None:
+                self.ready_at = now
+            if self.ready_at is not None and now - self.ready_at >= self.start_delay:
                 self.started = True
                 self.t_start = now
                 self.start_episode()
-            elif now > self.startup_deadline:
+            elif self.ready_at is None and now > self.startup_deadline:
                 missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
                 self.get_logger().error(
                     f"start-up timeout: {self.pub.get_subscription_count()} observation subscriber(s) "

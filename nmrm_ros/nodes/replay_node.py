@@ -27,6 +27,7 @@ PARAMETERS = {
     "wait_for_subscribers": Param(1, "subscribers to wait for on each replayed topic"),
     "wait_for_nodes": Param([""], "names of nodes whose subscriptions to wait for (any replayed topic)"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers"),
+    "start_delay": Param(0.0, "seconds to wait once subscribers are there (lets downstream endpoints match)"),
 }
 
 
@@ -53,6 +54,8 @@ class ReplayNode(Node):
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_for_nodes = {n for n in p["wait_for_nodes"] if n}
         self.deadline = time.monotonic() + float(p["startup_timeout"])
+        self.start_delay = float(p["start_delay"])
+        self.ready_at = None
         self.published = 0
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"replaying {self.path}: {', '.join(self.topics)} "
@@ -61,10 +64,13 @@ class ReplayNode(Node):
     def on_timer(self) -> None:
         subscribed = set().union(*(subscribed_nodes(self, pub.topic_name) for pub in self.pubs.values()))
         if (any(pub.get_subscription_count() < self.wait_for for pub in self.pubs.values())
-                or not subscribed >= self.wait_for_nodes):
+                or not subscribed >= self.wait_for_nodes) and self.ready_at is None:
             if time.monotonic() > self.deadline:
                 self.get_logger().error("start-up timeout waiting for subscribers")
                 self.exit_code = 1
+            return
+        self.ready_at = self.ready_at or time.monotonic()
+        if time.monotonic() - self.ready_at < self.start_delay:
             return
         self.timer.cancel()
         try:

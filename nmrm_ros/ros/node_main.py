@@ -102,7 +102,7 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
     return code
 
 
-def _flush_publishers(node, timeout: float = 2.0) -> None:
+def _flush_publishers(node, timeout: float = 5.0) -> None:
     """Wait (bounded) until reliable subscribers acknowledged what we published, so the last
     messages (an episode's final observation, its label) are not lost when the process exits."""
     from rclpy.duration import Duration
