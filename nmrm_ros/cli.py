@@ -175,7 +175,8 @@ def demo(
     typer.echo(f"[2/4] screened episodes: {screened} -> {gen}")
     write_dataset_bag(generate_screened(task, screened, seed=seed), gen, first_episode=10**6)
 
-    sample = _repo_dir("bags") / f"{task}_screened" if _repo_dir("bags") else None
+    bags_dir = _repo_dir("bags")
+    sample = bags_dir / f"{task}_screened" if bags_dir else None
     sources = [live, gen] + ([sample] if sample is not None and sample.is_dir() else [])
     typer.echo(f"[3/4] training csc_lstm from {' + '.join(map(str, sources))}")
     ds, report = load_bag_dataset(sources)

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryReturn
 
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.messages import as_vector, to_float_list
+from ..ros.messages import to_float_list
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, Param, declare_parameters,
                              exit_with_upstream, require_task, run_node)
 from ..ros.topics import OBSERVATION, ORACLE_STEP, STEP_QOS, TRAJECTORY_RETURN
@@ -64,32 +64,25 @@ class LabellerOracleNode(Node):
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
 
-    def mark_broken(self, msg: EnvObservation, why: str, newly: bool | None = None) -> None:
-        """Log an episode the first time it breaks (the follower counts it)."""
-        if newly if newly is not None else self.follower.break_episode(msg.episode):
-            self.get_logger().warning(f"episode {msg.episode} not labelled "
-                                      f"({self.follower.broken_episodes} so far): {why}")
+    def log_broken(self, msg: EnvObservation, why: str) -> None:
+        self.get_logger().warning(f"episode {msg.episode} not labelled "
+                                  f"({self.follower.broken_episodes} so far): {why}")
 
     def on_observation(self, msg: EnvObservation) -> None:
         self.messages_received += 1
-        try:
-            if msg.task != self.task:
-                raise ValueError(f"observation of task {msg.task!r}, this labeller labels {self.task!r}")
-            state = as_vector(msg.state, self.info.state_size, "state")
-        except ValueError as exc:
-            self.mark_broken(msg, str(exc))
-            return
-        kind = self.follower.classify(msg.episode, msg.step, state)
+        kind, state, why = self.follower.follow(msg, self.task, self.info.state_size)
         if kind is Kind.DUPLICATE:
             return
         if kind is Kind.BROKEN:
-            self.mark_broken(msg, f"step {msg.step} out of order", self.follower.just_broke)
+            if self.follower.just_broke:
+                self.log_broken(msg, why)
             return
         if kind is Kind.START:
             self.tracker.reset()
         if msg.terminated or msg.truncated:
             if msg.step == 0:
-                self.mark_broken(msg, "final observation at step 0", self.follower.break_episode(msg.episode))
+                self.follower.break_episode(msg.episode)
+                self.log_broken(msg, "final observation at step 0")
                 return
             self.follower.finish()
             value = self.tracker.total + (self.rng.normal(0.0, self.noise_std) if self.noise_std > 0 else 0.0)

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from nmrm_msgs.msg import EnvObservation, RewardStep
 
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.messages import as_vector, to_float_list
+from ..ros.messages import to_float_list
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, require_task, run_node)
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
@@ -83,28 +83,17 @@ class RewardModelNode(Node):
             exit_with_upstream(self, self.sub)
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}")
 
-    def mark_broken(self, msg: EnvObservation, why: str, newly: bool | None = None) -> None:
-        """Log an episode the first time it breaks (the follower counts it)."""
-        if newly if newly is not None else self.follower.break_episode(msg.episode):
-            self.get_logger().warning(f"episode {msg.episode} broken at step {msg.step} "
-                                      f"({self.follower.broken_episodes} so far): {why}; "
-                                      f"waiting for the next step 0")
-
     def on_observation(self, msg: EnvObservation) -> None:
         self.messages_received += 1
-        try:
-            if msg.task != self.task:
-                raise ValueError(f"observation of task {msg.task!r}, the model serves {self.task!r}")
-            state = as_vector(msg.state, self.info.state_size, "state")
-        except ValueError as exc:
-            self.mark_broken(msg, str(exc))
-            return
-        kind = self.follower.classify(msg.episode, msg.step, state)
+        kind, state, why = self.follower.follow(msg, self.task, self.info.state_size)
         if kind is Kind.DUPLICATE and self.last is not None:
             self.pub.publish(self.last)
             return
         if kind is Kind.BROKEN:
-            self.mark_broken(msg, "step out of order", self.follower.just_broke)
+            if self.follower.just_broke:
+                self.get_logger().warning(f"episode {msg.episode} broken at step {msg.step} "
+                                          f"({self.follower.broken_episodes} so far): {why}; "
+                                          f"waiting for the next step 0")
             return
         t0 = time.perf_counter()
         if kind is Kind.START:

@@ -19,6 +19,8 @@ import enum
 
 import numpy as np
 
+from .messages import as_vector
+
 
 class Kind(enum.Enum):
     START = "start"
@@ -63,6 +65,22 @@ class EpisodeFollower:
             return Kind.NEXT
         self.break_episode(episode)
         return Kind.BROKEN
+
+    def follow(self, msg, task: str, state_size: int) -> tuple:
+        """Validate an EnvObservation (task, state size, finite) and classify it.
+
+        Returns (kind, state, why): state is the float64 state (None if invalid); why says what
+        broke the episode when kind is BROKEN (log it when `just_broke`).
+        """
+        try:
+            if msg.task != task:
+                raise ValueError(f"observation of task {msg.task!r}, expected {task!r}")
+            state = as_vector(msg.state, state_size, "state")
+        except ValueError as exc:
+            self.break_episode(msg.episode)
+            return Kind.BROKEN, None, str(exc)
+        kind = self.classify(msg.episode, msg.step, state)
+        return kind, state, f"step {msg.step} out of order" if kind is Kind.BROKEN else ""
 
     def finish(self) -> None:
         """Mark the current episode complete (its final observation was consumed)."""
