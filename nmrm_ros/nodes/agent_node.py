@@ -6,32 +6,53 @@ policy "random": uniform over the task's action space (seeded); policy "sb3": a 
 stable-baselines3 policy (`policy_path`, a .zip from DQN or SAC; `algo` auto = DQN for the
 discrete tasks, SAC for Lunar Lander), deterministic.
 
+policy "learn": trains the paper's agent (double DQN, or SAC for Lunar Lander; config/rl.yaml)
+online from the RewardStep messages. SB3's own `learn()` runs in a learner thread on a
+`TopicEnv` (nmrm_ros/ros/topic_env.py), a gymnasium Env that is a bridge to the topics: the
+transition (s_t, a_t, r'_t, s_{t+1}) is the one the gymnasium wrappers give without ROS. The
+learner starts at the first step 0 it sees, plans its epsilon schedule over `episodes` episodes,
+and stops after them (then the node exits 0) or when the graph ends. Into `out` it writes
+policy.zip, curve.csv (learnt return per episode, and the oracle return when a labeller publishes
+TrajectoryReturn) and agent.json every `save_every` episodes and at exit (Ctrl-C/SIGTERM too);
+`save_replay_buffer` adds replay_buffer.pkl. Progress is logged every `log_every` episodes.
+
 No action is sent for a final (terminated/truncated) input. A repeated input (same episode and
-step, e.g. a re-published observation) gets the same action again. Learning through the graph comes
-with the RL issue: it will subscribe to the same topics.
+step, e.g. a re-published observation) gets the same action again.
 """
 
 from __future__ import annotations
 
+import threading
+import time
+from pathlib import Path
+
 import numpy as np
 from rclpy.node import Node
 
-from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep
+from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep, TrajectoryReturn
 
 from ..ros.messages import as_vector
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, require_task, run_node)
-from ..ros.topics import ACTION, OBSERVATION, REWARD_STEP, STEP_QOS
+from ..ros.topics import ACTION, OBSERVATION, REWARD_STEP, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "task": Param("key", "task (sets the action space)"),
     "observe": Param("reward_step", "reward_step | observation"),
-    "policy": Param("random", "random | sb3"),
+    "policy": Param("random", "random | sb3 | learn"),
     "policy_path": Param("", "stable-baselines3 .zip (policy sb3)"),
     "algo": Param("auto", "auto | dqn | sac (policy sb3)"),
     "continuous": Param(False, "continuous-action variant of the navigation tasks"),
-    "seed": Param(0, "seed of the random policy"),
+    "seed": Param(0, "seed of the random policy / of the learner (SB3 seed)"),
+    "episodes": Param(0, "policy learn: episodes to learn for (epsilon schedule, stop); 0 = config/rl.yaml"),
+    "out": Param("runs/agent", "policy learn: output directory (policy.zip, curve.csv, agent.json)"),
+    "save_every": Param(50, "policy learn: save the policy every this many episodes (0 = only at exit)"),
+    "log_every": Param(10, "policy learn: log progress every this many episodes"),
+    "observe_hidden": Param(True, "policy learn: observe augmented_state (false: the raw state only)"),
+    "learning_starts": Param(-1, "policy learn: random steps before learning; -1 = config/rl.yaml"),
+    "save_replay_buffer": Param(False, "policy learn: also save replay_buffer.pkl"),
+    "rl_config": Param("", "policy learn: RL config YAML (default config/rl.yaml)"),
 }
 
 
@@ -46,16 +67,25 @@ class AgentNode(Node):
         self.rng = np.random.default_rng(int(p["seed"]))
         self.policy = p["policy"]
         self.sb3 = None
+        self.learner: Learner | None = None
         if self.policy == "sb3":
             self.sb3 = self._load_sb3(p["policy_path"], p["algo"])
+        elif self.policy == "learn":
+            if p["observe"] != "reward_step":
+                raise NodeError("policy learn needs observe reward_step (rewards come with RewardStep)")
+            self.learner = Learner(self, p)
         elif self.policy != "random":
-            raise NodeError(f"unknown policy {self.policy!r}: use 'random' or 'sb3'")
+            raise NodeError(f"unknown policy {self.policy!r}: use 'random', 'sb3' or 'learn'")
         self.last_key = None
         self.last_action = None
         self.sent = 0
         self.dropped = 0
         self.pub = self.create_publisher(AgentAction, ACTION, STEP_QOS)
-        if p["observe"] == "reward_step":
+        if self.learner is not None:
+            self.sub = self.create_subscription(RewardStep, REWARD_STEP, self.learner.on_reward_step, STEP_QOS)
+            self.labels_sub = self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN,
+                                                       self.learner.on_label, STEP_QOS)
+        elif p["observe"] == "reward_step":
             self.sub = self.create_subscription(RewardStep, REWARD_STEP,
                                                 lambda m: self.act(m, m.augmented_state), STEP_QOS)
         elif p["observe"] == "observation":
@@ -114,6 +144,154 @@ class AgentNode(Node):
         if self.discrete:
             return [float(self.rng.integers(self.info.action_size))]
         return [float(x) for x in self.rng.uniform(-1.0, 1.0, 2)]
+
+    def publish_action(self, episode: int, step: int, action: list) -> None:
+        out = AgentAction(episode=episode, step=step, action=action)
+        out.header.stamp = self.get_clock().now().to_msg()
+        self.pub.publish(out)
+        self.sent += 1
+
+    def close(self) -> None:
+        if self.learner is not None:
+            self.learner.stop()
+
+
+class Learner:
+    """policy learn: SB3's learn() in a thread, on a TopicEnv fed by the node's callbacks."""
+
+    def __init__(self, node: AgentNode, p: dict) -> None:
+        from ..rl import algorithm_name, load_rl_config
+
+        self.node = node
+        self.task = node.info.name
+        self.algo = algorithm_name(self.task, continuous=not node.discrete)
+        overrides = {"episodes": int(p["episodes"]) or None}
+        if int(p["learning_starts"]) >= 0:
+            overrides["learning_starts"] = int(p["learning_starts"])
+        try:
+            self.cfg = load_rl_config(self.algo, p["rl_config"] or None, **overrides)
+        except (OSError, ValueError) as exc:
+            raise NodeError(f"RL config: {exc}") from None
+        self.episodes = int(self.cfg["episodes"])
+        self.seed = int(p["seed"])
+        self.out = Path(p["out"])
+        self.save_every = int(p["save_every"])
+        self.log_every = max(1, int(p["log_every"]))
+        self.use_hidden = bool(p["observe_hidden"])
+        self.save_buffer = bool(p["save_replay_buffer"])
+        self.env = None
+        self.model = None
+        self.thread: threading.Thread | None = None
+        self.records: list = []      # (episode id, learnt return, steps, wall time)
+        self.labels: dict = {}       # episode id -> oracle return (TrajectoryReturn)
+        self.lock = threading.Lock()
+        self.done = threading.Event()
+        self.t0 = time.monotonic()
+        self.outcome = "not started"
+        self.source = ""
+        node.get_logger().info(f"learning {self.algo} on {self.task} for {self.episodes} episodes, "
+                               f"seed {self.seed}, output {self.out}")
+
+    # -- node thread -------------------------------------------------------------------------------
+    def on_reward_step(self, msg: RewardStep) -> None:
+        self.node.messages_received += 1
+        if self.env is None:
+            if msg.step != 0 or msg.terminated or msg.truncated:
+                return
+            self.source = msg.source
+            self.start(len(msg.augmented_state) if self.use_hidden else len(msg.state))
+        self.env.put(msg)
+
+    def on_label(self, msg: TrajectoryReturn) -> None:
+        with self.lock:
+            self.labels[int(msg.episode)] = float(msg.return_value)
+
+    def start(self, observation_size: int) -> None:
+        import gymnasium as gym
+
+        from ..ros.topic_env import TopicEnv
+
+        info = self.node.info
+        if self.node.discrete:
+            space = gym.spaces.Discrete(info.action_size)
+        else:
+            space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self.env = TopicEnv(observation_size, space, self.node.publish_action, use_hidden=self.use_hidden,
+                            max_episodes=self.episodes)
+        self.thread = threading.Thread(target=self.run, name="learner", daemon=True)
+        self.thread.start()
+
+    def stop(self) -> None:
+        """Called at shutdown: stop the learner (it saves) and wait for it."""
+        if self.env is not None:
+            self.env.stop()
+        if self.thread is not None:
+            self.thread.join(timeout=60.0)
+        self.node.get_logger().info(f"learner {self.outcome}; {len(self.records)} episode(s), "
+                                    f"{self.env.skipped if self.env else 0} message(s) skipped, "
+                                    f"{self.env.broken if self.env else 0} episode(s) cut short")
+
+    # -- learner thread ----------------------------------------------------------------------------
+    def run(self) -> None:
+        import torch
+        from stable_baselines3.common.monitor import Monitor
+        from stable_baselines3.common.vec_env import DummyVecEnv
+
+        from ..rl import EpisodeCurveCallback, make_algorithm
+        from ..ros.topic_env import LearnerStopped
+
+        torch.set_num_threads(1)
+        log = self.node.get_logger()
+        try:
+            vec = DummyVecEnv([lambda: Monitor(self.env)])
+            self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed)
+            callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode)
+            self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
+            self.outcome = f"finished {self.episodes} episodes"
+        except LearnerStopped:
+            self.outcome = "stopped by shutdown"
+        except Exception as exc:  # noqa: BLE001 - a learner failure must not lose the policy
+            self.outcome = f"failed: {exc!r}"
+            log.error(f"learner failed: {exc!r}")
+        finally:
+            if self.model is not None:
+                self.save()
+            self.done.set()
+            if self.node.exit_code is None:
+                self.node.exit_code = 0 if not self.outcome.startswith("failed") else 1
+
+    def on_episode(self, rec, info: dict) -> None:
+        self.records.append((info.get("episode_id", -1), rec.learnt_return, rec.steps, time.monotonic() - self.t0))
+        n = len(self.records)
+        if n % self.log_every == 0 or n == self.episodes:
+            last = self.records[-self.log_every:]
+            with self.lock:
+                oracle = [self.labels[e] for e, *_ in last if e in self.labels]
+            eps = getattr(self.model, "exploration_rate", None)
+            self.node.get_logger().info(
+                f"episode {n}/{self.episodes}: mean learnt return {np.mean([r[1] for r in last]):.3f}"
+                + (f", mean oracle return {np.mean(oracle):.3f}" if oracle else "")
+                + (f", epsilon {eps:.3f}" if eps is not None else "")
+                + f", {sum(r[2] for r in self.records) / max(self.records[-1][3], 1e-9):.0f} steps/s")
+        if self.save_every and n % self.save_every == 0 and n < self.episodes:
+            self.save()
+
+    def save(self) -> None:
+        from ..rl import LearningCurve, save_agent
+        from ..rl.training import EpisodeRecord
+
+        with self.lock:
+            labels = dict(self.labels)
+        curve = LearningCurve([EpisodeRecord(e, labels.get(e, float("nan")), g, steps, wall)
+                               for e, g, steps, wall in self.records])
+        save_agent(self.model, curve, self.out, {
+            "task": self.task, "algorithm": self.algo, "seed": self.seed, "reward_source": self.source,
+            "reward": ("oracle" if self.use_hidden else "oracle-no-hidden") if self.source == "oracle" else "model",
+            "episodes": self.episodes, "episodes_done": len(self.records), "observe_hidden": self.use_hidden,
+            "outcome": self.outcome, "config": self.cfg})
+        if self.save_buffer:
+            self.model.save_replay_buffer(self.out / "replay_buffer.pkl")
+        self.node.get_logger().info(f"saved {self.out}/policy.zip after {len(self.records)} episode(s)")
 
 
 def main(args=None) -> int:

@@ -1,0 +1,195 @@
+"""Reproduce the paper's Figure 4 (Sec. 4.2, App. E): DQN agents on the four 2D navigation tasks,
+trained on the CSC Instance Space LSTM's rewards and hidden states, against the oracle with its
+hidden state, the oracle without it, and the Markovian Instance Space NN.
+
+    .venv/bin/python bench/reproduce_rl.py                      # 3 seeds, 400 episodes, 4 tasks
+    .venv/bin/python bench/reproduce_rl.py --seeds 0 --tasks key --episodes 100   # a quick look
+
+Seed s pairs one MIL model with one agent, as the paper does: the reward models are trained with
+weight seed s on split s of one screened dataset per task (data seed 0, 5000 episodes; the
+hyperparameters of config/mil_training.yaml) and cached under --work/models; agent s is trained
+with seed s (SB3 seed and the env's episode seeds s*10**6 + e). Every agent is judged by the
+oracle (post hoc). Hyperparameters: config/rl.yaml.
+
+Output (bench/results/): reproduce_rl.png (oracle-return curves, mean +/- SEM over seeds, a
+moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
+episodes, mean +/- SEM and worst seed), plus every run's curve.csv under --work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+TASKS = ("timer", "moving", "key", "charger")
+#: reward kind -> (label, MIL architecture or None)
+KINDS = {
+    "model": ("CSC Instance Space LSTM", "csc_lstm"),
+    "oracle": ("Oracle (with hidden state)", None),
+    "oracle-no-hidden": ("Oracle (without hidden state)", None),
+    "markovian": ("Instance Space NN (Markovian)", "instance_nn"),
+}
+FINAL_WINDOW = 50
+
+
+def model_path(work: Path, task: str, arch: str, seed: int) -> Path:
+    return work / "models" / f"{task}_{arch}_seed{seed}"
+
+
+def train_reward_model(job: tuple) -> dict:
+    """Train (or reuse) the MIL model of (task, arch, seed); returns its test metrics."""
+    work, task, arch, seed = job
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.datasets import generate_screened
+    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil.pipeline import train_and_evaluate
+
+    out = model_path(work, task, arch, seed)
+    meta_file = out.with_suffix(".json")
+    if meta_file.is_file():
+        meta = json.loads(meta_file.read_text())
+        return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
+    ds = generate_screened(task, 5000, seed=0)
+    cfg = load_train_config(task, seed=seed)
+    run = train_and_evaluate(ds, arch, cfg, split_seed=seed, out=out, progress=False,
+                             data_source=f"screened:{task}:n=5000:seed=0")
+    return {"task": task, "arch": arch, "seed": seed, **run.test_metrics,
+            "seconds": run.train.seconds, "cached": False}
+
+
+def train_agent_job(job: tuple) -> dict:
+    work, task, kind, seed, episodes = job
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.rl import train_agent
+
+    arch = KINDS[kind][1]
+    reward = "model" if arch else kind
+    checkpoint = model_path(work, task, arch, seed) if arch else None
+    out = work / "agents" / f"{task}_{kind}_seed{seed}"
+    if (out / "curve.csv").is_file() and (out / "policy.zip").is_file():
+        curve = read_curve(out / "curve.csv")
+        if len(curve) == episodes:
+            return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True}
+    t0 = time.perf_counter()
+    train_agent(task, reward, checkpoint=checkpoint, episodes=episodes, seed=seed, out=out,
+                progress=False)
+    return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": False,
+            "seconds": time.perf_counter() - t0}
+
+
+def read_curve(path: Path) -> list:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tasks", nargs="*", default=list(TASKS))
+    parser.add_argument("--kinds", nargs="*", default=list(KINDS), choices=list(KINDS))
+    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
+    parser.add_argument("--episodes", type=int, default=400)
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"))
+    parser.add_argument("--models-only", action="store_true", help="train the reward models and stop")
+    parser.add_argument("--results", type=Path, default=Path("bench/results"))
+    args = parser.parse_args()
+    start = time.perf_counter()
+
+    model_jobs = [(args.work, t, KINDS[k][1], s) for s in args.seeds for t in args.tasks
+                  for k in args.kinds if KINDS[k][1]]
+    print(f"# {len(model_jobs)} reward models, {args.jobs} workers", flush=True)
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for r in pool.map(train_reward_model, model_jobs):
+            print(f"  {r['task']:8s} {r['arch']:12s} seed {r['seed']}: test return MSE {r['return_mse']:.4f}, "
+                  f"reward MSE {r['reward_mse']:.5f}{' (cached)' if r['cached'] else ''}", flush=True)
+    if args.models_only:
+        return
+    agent_jobs = [(args.work, t, k, s, args.episodes) for s in args.seeds for t in args.tasks for k in args.kinds]
+    print(f"# {len(agent_jobs)} agents x {args.episodes} episodes, {args.jobs} workers", flush=True)
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for r in pool.map(train_agent_job, agent_jobs):
+            curve = read_curve(Path(r["out"]) / "curve.csv")
+            final = np.mean([float(row["oracle_return"]) for row in curve[-FINAL_WINDOW:]])
+            took = "cached" if r["cached"] else f"{r['seconds']:.0f} s"
+            print(f"  {r['task']:8s} {r['kind']:17s} seed {r['seed']}: final oracle return {final:7.2f} ({took})",
+                  flush=True)
+    report(args, time.perf_counter() - start)
+
+
+def report(args, seconds: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    args.results.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, len(args.tasks), figsize=(4.2 * len(args.tasks), 3.4), squeeze=False)
+    lines = [f"# Figure 4: final oracle return (mean of the last {FINAL_WINDOW} of {args.episodes} episodes), "
+             f"mean ± SEM over seeds {args.seeds}; worst seed in brackets",
+             f"# command: .venv/bin/python bench/reproduce_rl.py --tasks {' '.join(args.tasks)} "
+             f"--kinds {' '.join(args.kinds)} --seeds {' '.join(map(str, args.seeds))} --episodes {args.episodes}",
+             f"{'reward':32s} " + " ".join(f"{t:>22s}" for t in args.tasks)]
+    finals = {}
+    for i, task in enumerate(args.tasks):
+        ax = axes[0][i]
+        for kind in args.kinds:
+            curves = []
+            for seed in args.seeds:
+                path = args.work / "agents" / f"{task}_{kind}_seed{seed}" / "curve.csv"
+                if path.is_file():
+                    curves.append([float(r["oracle_return"]) for r in read_curve(path)])
+            if not curves:
+                continue
+            n = min(len(c) for c in curves)
+            arr = np.array([c[:n] for c in curves])
+            finals[(task, kind)] = arr[:, -FINAL_WINDOW:].mean(axis=1)
+            smooth = np.array([np.convolve(c, np.ones(20) / 20, mode="valid") for c in arr])
+            mean = smooth.mean(axis=0)
+            sem = smooth.std(axis=0, ddof=1) / np.sqrt(len(smooth)) if len(smooth) > 1 else 0 * mean
+            x = np.arange(len(mean)) + 20
+            ax.plot(x, mean, label=KINDS[kind][0])
+            ax.fill_between(x, mean - sem, mean + sem, alpha=0.25)
+        ax.set_title(task.capitalize())
+        ax.set_xlabel("episode")
+        if i == 0:
+            ax.set_ylabel("oracle return")
+    axes[0][0].legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    png = args.results / "reproduce_rl.png"
+    fig.savefig(png, dpi=120)
+    for kind in args.kinds:
+        cells = []
+        for task in args.tasks:
+            v = finals.get((task, kind))
+            if v is None:
+                cells.append("-")
+                continue
+            sem = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0
+            cells.append(f"{v.mean():7.2f} ± {sem:5.2f} [{v.min():6.2f}]")
+        lines.append(f"{KINDS[kind][0]:32s} " + " ".join(f"{c:>22s}" for c in cells))
+    if "model" in args.kinds and "oracle" in args.kinds:
+        ratios = []
+        for task in args.tasks:
+            if (task, "model") in finals and (task, "oracle") in finals:
+                o = finals[(task, "oracle")].mean()
+                ratios.append(f"{task} {finals[(task, 'model')].mean() / o:.0%}" if o > 0 else f"{task} n/a")
+        lines.append("# learnt / oracle-with-hidden final return: " + ", ".join(ratios))
+    lines.append(f"# wall time {seconds:.0f} s on {os.cpu_count()} cores; curves: {png}")
+    text = "\n".join(lines)
+    print(text)
+    (args.results / "reproduce_rl.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()

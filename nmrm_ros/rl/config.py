@@ -1,0 +1,78 @@
+"""RL hyperparameters (config/rl.yaml) and the SB3 algorithm built from them.
+
+`make_algorithm(env, task, seed)` gives the paper's agent for a task (App. E): double DQN for the 2D
+navigation tasks, SAC for Lunar Lander. Plain Python, no rclpy.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "rl.yaml"
+
+
+def config_path() -> Path:
+    """config/rl.yaml of the source tree, else of the installed share directory."""
+    if CONFIG_FILE.is_file():
+        return CONFIG_FILE
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory("nmrm_ros")) / "config" / "rl.yaml"
+
+
+def algorithm_name(task: str, continuous: bool = False) -> str:
+    """"dqn" for the discrete navigation tasks, "sac" for Lunar Lander and continuous variants."""
+    from ..tasks import task_info
+
+    info = task_info(task)
+    return "dqn" if info.discrete and not continuous else "sac"
+
+
+def load_rl_config(algo: str, path: str | Path | None = None, **overrides) -> dict:
+    """The `algo` section ("dqn" | "sac") of the RL config, with non-None overrides applied."""
+    with open(path or config_path()) as f:
+        table = yaml.safe_load(f)
+    if algo not in table:
+        raise ValueError(f"no RL config for {algo!r} in {path or config_path()}")
+    cfg = dict(table[algo])
+    unknown = set(overrides) - set(cfg)
+    if unknown:
+        raise ValueError(f"unknown RL settings {sorted(unknown)}")
+    cfg.update({k: v for k, v in overrides.items() if v is not None})
+    return cfg
+
+
+def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0, verbose: int = 0):
+    """The SB3 model for `env` (a gymnasium Env or VecEnv) from a config section.
+
+    episode_length: steps per episode T (the epsilon schedule is given in episodes; with fixed-length
+    episodes it is SB3's step schedule over `episodes * T` steps).
+    """
+    total = int(cfg["episodes"]) * int(episode_length)
+    if algo == "dqn":
+        from .double_dqn import DoubleDQN
+
+        return DoubleDQN(
+            "MlpPolicy", env, seed=seed, verbose=verbose, device="cpu",
+            learning_rate=cfg["learning_rate"], buffer_size=int(cfg["buffer_size"]),
+            learning_starts=int(cfg["learning_starts"]), batch_size=int(cfg["batch_size"]),
+            tau=cfg["tau"], gamma=cfg["gamma"], train_freq=int(cfg["train_freq"]),
+            gradient_steps=int(cfg["gradient_steps"]),
+            target_update_interval=int(cfg["target_update_interval"]),
+            exploration_fraction=int(cfg["exploration_episodes"]) * episode_length / total,
+            exploration_initial_eps=cfg["exploration_initial_eps"],
+            exploration_final_eps=cfg["exploration_final_eps"], max_grad_norm=cfg["max_grad_norm"],
+            double_q=bool(cfg["double_q"]), policy_kwargs={"net_arch": list(cfg["net_arch"])})
+    if algo == "sac":
+        from .sac import SplitLRSAC
+
+        return SplitLRSAC(
+            "MlpPolicy", env, seed=seed, verbose=verbose, device="cpu",
+            learning_rate=cfg["learning_rate"], policy_learning_rate=cfg["policy_learning_rate"],
+            buffer_size=int(cfg["buffer_size"]), learning_starts=int(cfg["learning_starts"]),
+            batch_size=int(cfg["batch_size"]), tau=cfg["tau"], gamma=cfg["gamma"],
+            train_freq=int(cfg["train_freq"]), gradient_steps=int(cfg["gradient_steps"]),
+            ent_coef=cfg["ent_coef"], policy_kwargs={"net_arch": list(cfg["net_arch"])})
+    raise ValueError(f"unknown algorithm {algo!r}: use dqn or sac")

@@ -1,0 +1,119 @@
+"""Judging an agent by the oracle (post hoc, as the paper does): the greedy policy's oracle return
+on fixed episode seeds, beside a uniform-random policy's on the same seeds."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+#: default first episode seed of evaluations: far from the training seeds (0, 1, 2... + e)
+EVAL_SEED = 10**8
+
+
+@dataclass
+class EvaluationResult:
+    """Oracle returns (episodes,) of the greedy policy and of a random policy on the same seeds."""
+
+    returns: np.ndarray
+    random_returns: np.ndarray
+    reward: str
+
+    @staticmethod
+    def _ms(v: np.ndarray) -> tuple[float, float]:
+        return float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else 0.0
+
+    def summary(self) -> str:
+        m, s = self._ms(self.returns)
+        rm, rs = self._ms(self.random_returns)
+        return (f"oracle return over {len(self.returns)} episodes: policy {m:.3f} ± {s:.3f} (SEM), "
+                f"random policy {rm:.3f} ± {rs:.3f}")
+
+
+def load_agent(policy: str | Path):
+    """(SB3 model, agent.json metadata or {}) of a saved policy .zip."""
+    from stable_baselines3 import DQN, SAC
+
+    policy = Path(policy)
+    if not policy.is_file():
+        raise ValueError(f"no policy file {policy}")
+    meta_file = policy.with_name("agent.json")
+    meta = json.loads(meta_file.read_text()) if meta_file.is_file() else {}
+    algo = meta.get("algorithm")
+    errors = []
+    for cls in ((DQN,) if algo == "dqn" else (SAC,) if algo == "sac" else (DQN, SAC)):
+        try:
+            return cls.load(policy, device="cpu"), meta
+        except Exception as exc:  # noqa: BLE001 - try the other algorithm, then report
+            errors.append(f"{cls.__name__}: {exc}")
+    raise ValueError(f"cannot load policy {policy}: {'; '.join(errors)}")
+
+
+def _reward_kind(model, task: str, checkpoint, meta: dict) -> tuple[str, object]:
+    from ..oracles import make_oracle
+    from ..tasks import task_info
+
+    if checkpoint is not None:
+        return "model", checkpoint
+    if meta.get("reward"):
+        if meta["reward"] == "model" and not meta.get("checkpoint"):
+            raise ValueError("the policy was trained on a model's reward; give its checkpoint")
+        return meta["reward"], meta.get("checkpoint")
+    size = model.observation_space.shape[0]
+    state = task_info(task).state_size
+    if size == state:
+        return "oracle-no-hidden", None
+    if size == state + make_oracle(task).hidden_size:
+        return "oracle", None
+    raise ValueError(f"the policy observes {size} values; task {task} states have {state}: give the "
+                     f"checkpoint of the reward model it was trained with")
+
+
+def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, episodes: int = 50,
+                   seed: int = EVAL_SEED, reward: str | None = None, env=None) -> EvaluationResult:
+    """Run the greedy policy (`policy`: a .zip path or an SB3 model) for `episodes` episodes with
+    episode seeds seed, seed + 1, ... and return its oracle returns and a random policy's.
+
+    The observation is built as in training: with `checkpoint` the model's hidden state, else the
+    reward kind recorded in the policy's agent.json (or inferred from its observation size).
+    `env`: evaluate on this wrapped env instead (its `info` must carry "oracle_return").
+    """
+    from .wrappers import make_reward_env
+
+    meta = {}
+    model = policy
+    if isinstance(policy, (str, Path)):
+        model, meta = load_agent(policy)
+    if meta.get("task") and meta["task"] != task:
+        raise ValueError(f"the policy was trained on task {meta['task']!r}, not {task!r}")
+    if reward is None:
+        reward, checkpoint = _reward_kind(model, task, checkpoint, meta)
+    if env is None:
+        env = make_reward_env(task, reward, checkpoint if reward == "model" else None, seed=seed)
+    if env.observation_space.shape != model.observation_space.shape:
+        raise ValueError(f"the policy observes {model.observation_space.shape}, the {reward} env gives "
+                         f"{env.observation_space.shape}")
+    returns = _run(env, episodes, seed, lambda obs: model.predict(obs, deterministic=True)[0])
+    rng = np.random.default_rng(seed)
+    space = env.action_space
+    if hasattr(space, "n"):
+        act = lambda obs: int(rng.integers(space.n))  # noqa: E731
+    else:
+        act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
+    random_returns = _run(env, episodes, seed, act)
+    return EvaluationResult(np.asarray(returns), np.asarray(random_returns), reward)
+
+
+def _run(env, episodes: int, seed: int, act) -> list:
+    returns = []
+    obs, _ = env.reset(seed=seed)
+    for _ in range(episodes):
+        while True:
+            obs, _, terminated, truncated, info = env.step(act(obs))
+            if terminated or truncated:
+                returns.append(info["oracle_return"])
+                obs, _ = env.reset()
+                break
+    return returns

@@ -1,0 +1,181 @@
+"""Training an RL agent on a non-Markovian reward without ROS (gymnasium + stable-baselines3).
+
+`train_agent(task, reward, checkpoint, episodes, seed, out)` builds the wrapped env
+(`make_reward_env`), the paper's algorithm for the task (`make_algorithm`), lets SB3's `learn()`
+run, and writes into `out/`:
+
+- `policy.zip`: the SB3 model (load with `DoubleDQN.load` / `SplitLRSAC.load`, or SB3's DQN/SAC);
+- `curve.csv`: one row per episode: episode, oracle_return, learnt_return, steps, wall_time (s);
+- `curve.png`: the oracle and learnt-reward returns per episode;
+- `agent.json`: task, reward kind, checkpoint, seeds and config (what `evaluate_agent` needs).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+CURVE_FIELDS = ("episode", "oracle_return", "learnt_return", "steps", "wall_time")
+
+
+@dataclass
+class EpisodeRecord:
+    episode: int
+    oracle_return: float
+    learnt_return: float
+    steps: int
+    wall_time: float
+
+
+@dataclass
+class LearningCurve:
+    """Episodes finished so far, in the order they finished (over every env of a VecEnv)."""
+
+    records: list = field(default_factory=list)
+
+    def final_oracle_return(self, window: int = 50) -> float:
+        """Mean oracle return of the last `window` episodes (the paper's end-of-training figure)."""
+        return float(np.mean([r.oracle_return for r in self.records[-window:]])) if self.records else float("nan")
+
+    def write_csv(self, path: Path) -> None:
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(CURVE_FIELDS)
+            for r in self.records:
+                w.writerow([r.episode, f"{r.oracle_return:.6g}", f"{r.learnt_return:.6g}", r.steps,
+                            f"{r.wall_time:.3f}"])
+
+    def plot(self, path: Path, title: str) -> None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        ep = np.array([r.episode for r in self.records])
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        for name, values, colour in (("oracle return", [r.oracle_return for r in self.records], "k"),
+                                     ("learnt-reward return", [r.learnt_return for r in self.records], "tab:blue")):
+            values = np.asarray(values)
+            ax.plot(ep, values, color=colour, alpha=0.25, lw=0.8)
+            if len(values) >= 20:
+                ax.plot(ep[19:], np.convolve(values, np.ones(20) / 20, mode="valid"), color=colour,
+                        label=f"{name} (mean of 20)")
+            else:
+                ax.plot(ep, values, color=colour, label=name)
+        ax.set_xlabel("episode")
+        ax.set_ylabel("return")
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
+
+class EpisodeCurveCallback(BaseCallback):
+    """Records every finished episode's oracle and learnt returns (from the wrappers' `info`) and
+    stops learning after `max_episodes` episodes (Lunar Lander's episodes can end early).
+    `on_episode(record, info)` is called for each, with the episode's final `info`."""
+
+    def __init__(self, max_episodes: int | None = None, on_episode=None) -> None:
+        super().__init__()
+        self.curve = LearningCurve()
+        self.max_episodes = max_episodes
+        self.on_episode = on_episode
+        self._steps: np.ndarray | None = None
+        self._stop_next = False
+        self._t0 = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        # SB3 calls this after env.step() and before storing the transition: stop at the step
+        # *after* the last episode, so that the last episode's final transition is stored too.
+        if self._stop_next:
+            return False
+        dones = self.locals["dones"]
+        if self._steps is None:
+            self._steps = np.zeros(len(dones), dtype=np.int64)
+        self._steps += 1
+        for i, (done, info) in enumerate(zip(dones, self.locals["infos"])):
+            if not done:
+                continue
+            rec = EpisodeRecord(len(self.curve.records), float(info.get("oracle_return", np.nan)),
+                                float(info.get("learnt_return", np.nan)), int(self._steps[i]),
+                                time.perf_counter() - self._t0)
+            self.curve.records.append(rec)
+            self._steps[i] = 0
+            if self.on_episode is not None:
+                self.on_episode(rec, info)
+        if self.max_episodes is not None and len(self.curve.records) >= self.max_episodes:
+            self._stop_next = True
+        return True
+
+
+@dataclass
+class AgentRun:
+    model: object
+    curve: LearningCurve
+    seconds: float
+    out: Path | None
+
+
+def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
+                episodes: int | None = None, seed: int = 0, out: str | Path | None = None,
+                env_seed: int | None = None, n_envs: int = 1, progress: bool = True,
+                config: str | Path | None = None, on_episode=None, **overrides) -> AgentRun:
+    """Train the paper's agent for `task` on reward `reward` ("model" with `checkpoint`, "oracle",
+    "oracle-no-hidden") for `episodes` episodes (default: the config's).
+
+    seed: SB3's seed (weights, exploration, replay sampling); env_seed: episode e of env i resets
+    with `env_seed + i * 10**6 + e` (default env_seed = seed), as an env_sim node with
+    `seed:=env_seed` does for env 0. overrides: settings of config/rl.yaml (e.g. learning_starts).
+    """
+    import torch
+    from stable_baselines3.common.vec_env import DummyVecEnv
+    from stable_baselines3.common.monitor import Monitor
+
+    from ..tasks import task_info
+    from .config import algorithm_name, load_rl_config, make_algorithm
+    from .wrappers import make_reward_env
+
+    info = task_info(task)
+    algo = algorithm_name(task)
+    cfg = load_rl_config(algo, config, episodes=episodes, **overrides)
+    episodes = int(cfg["episodes"])
+    env_seed = seed if env_seed is None else int(env_seed)
+    envs = [make_reward_env(task, reward, checkpoint, seed=env_seed + i * 10**6) for i in range(n_envs)]
+    vec = DummyVecEnv([lambda e=e: Monitor(e) for e in envs])
+    torch.manual_seed(seed)
+    model = make_algorithm(vec, algo, cfg, info.episode_length, seed=seed)
+    # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
+    # as its base, so give each env its own base (VecEnv.seed can only add the env index).
+    vec._seeds = [env_seed + i * 10**6 for i in range(n_envs)]  # noqa: SLF001 - no public setter
+    callback = EpisodeCurveCallback(max_episodes=episodes, on_episode=on_episode)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
+    seconds = time.perf_counter() - t0
+    out_dir = None
+    if out is not None:
+        out_dir = Path(out)
+        save_agent(model, callback.curve, out_dir, {
+            "task": task, "reward": reward, "algorithm": algo,
+            "checkpoint": str(checkpoint) if checkpoint is not None else None,
+            "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
+            "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
+            "config": cfg})
+    return AgentRun(model, callback.curve, seconds, out_dir)
+
+
+def save_agent(model, curve: LearningCurve, out: Path, meta: dict) -> None:
+    """policy.zip, curve.csv, curve.png and agent.json in `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    model.save(out / "policy.zip")
+    curve.write_csv(out / "curve.csv")
+    title = f"{meta.get('task')}: {meta.get('algorithm')} on reward {meta.get('reward')}, seed {meta.get('seed')}"
+    if curve.records:
+        curve.plot(out / "curve.png", title)
+    (out / "agent.json").write_text(json.dumps(meta, indent=2, default=str))

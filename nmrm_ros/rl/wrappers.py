@@ -1,0 +1,159 @@
+"""gymnasium wrappers that give a rewardless task env a non-Markovian reward (paper Sec. 3.3, App. E).
+
+A wrapper tracks one hidden state per episode and steps it with every state the env returns:
+
+    reset():  s_0            -> (r_0, h_1) = stepper.step(s_0); observation [s_0, h_1]
+    step(a_t): s_{t+1}       -> reward r_t (computed from s_t, as R(s_t, a_t, h_{t+1}) is);
+                                (r_{t+1}, h_{t+2}) = stepper.step(s_{t+1}); observation [s_{t+1}, h_{t+2}]
+
+so the agent always observes the hidden state *after* seeing the current state (the paper's
+Figure 2 order), exactly as the reward_model node publishes RewardStep.augmented_state. The
+stepper's output on the final observation s_T gives the terminal observation; its reward belongs to
+no transition. The same rule holds in the ROS graph, so a wrapper and a graph with the same seeds
+give the same transitions.
+
+Every wrapper puts the oracle's reward of the transition in `info["oracle_reward"]` (and
+`info["learnt_reward"]`), and at the end of an episode `info["oracle_return"]` and
+`info["learnt_return"]`, so that any run can be judged by the oracle post hoc, as the paper does.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from ..oracles import Oracle, OracleTracker, make_oracle
+
+REWARD_KINDS = ("model", "oracle", "oracle-no-hidden")
+
+
+class HiddenStateStepper(Protocol):
+    """What a wrapper steps: `nmrm_ros.mil.OnlineRewardModel` or `nmrm_ros.oracles.OracleTracker`."""
+
+    def reset(self) -> None: ...
+
+    def step(self, state: np.ndarray) -> tuple[float, np.ndarray]: ...
+
+
+class EpisodeSeeds(gym.Wrapper):
+    """Reset episode e with seed `seed + e`, as the env_sim node does.
+
+    `reset(seed=s)` restarts the count at s (e = 0); `reset()` without a seed moves to the next
+    episode. This makes every episode reproducible on its own, and a wrapper run see the same
+    episodes as a graph whose env_sim has `seed:=s`.
+    """
+
+    def __init__(self, env: gym.Env, seed: int = 0) -> None:
+        super().__init__(env)
+        self.base_seed = int(seed)
+        self.episode = -1
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self.base_seed, self.episode = int(seed), -1
+        self.episode += 1
+        return self.env.reset(seed=self.base_seed + self.episode, options=options)
+
+
+class NonMarkovianRewardWrapper(gym.Wrapper):
+    """Replace the env's reward by a stepper's reward; optionally append its hidden state.
+
+    env: a rewardless task env (`nmrm_ros.tasks.make_env`); stepper: gives (r_t, h_{t+1}) per state;
+    task: the task (or an `Oracle`) whose oracle judges the run (info); augment: observe
+    [s_t, h_{t+1}] (else s_t only); hidden_size: size of h (for the observation space).
+    """
+
+    def __init__(self, env: gym.Env, stepper: HiddenStateStepper, task: str | Oracle, augment: bool,
+                 hidden_size: int) -> None:
+        super().__init__(env)
+        self.stepper = stepper
+        self.oracle = OracleTracker(make_oracle(task) if isinstance(task, str) else task)
+        self.augment = augment and hidden_size > 0
+        base = env.observation_space
+        if self.augment:
+            low = np.concatenate([base.low, np.full(hidden_size, -np.inf)]).astype(np.float32)
+            high = np.concatenate([base.high, np.full(hidden_size, np.inf)]).astype(np.float32)
+            self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
+        self._pending = (0.0, 0.0)  # (reward, oracle reward) of the current state s_t
+        self._returns = [0.0, 0.0]
+
+    def _consume(self, state: np.ndarray) -> np.ndarray:
+        """Step both trackers with s_t; remember r_t; return the observation."""
+        reward, hidden = self.stepper.step(state)
+        oracle_reward, _ = self.oracle.step(state)
+        self._pending = (float(reward), float(oracle_reward))
+        if not self.augment:
+            return np.asarray(state, dtype=np.float32)
+        return np.concatenate([np.asarray(state, np.float64), np.asarray(hidden, np.float64)]).astype(np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        state, info = self.env.reset(seed=seed, options=options)
+        self.stepper.reset()
+        self.oracle.reset()
+        self._returns = [0.0, 0.0]
+        return self._consume(state), info
+
+    def step(self, action):
+        state, _, terminated, truncated, info = self.env.step(action)
+        reward, oracle_reward = self._pending
+        self._returns[0] += reward
+        self._returns[1] += oracle_reward
+        obs = self._consume(state)
+        info = dict(info, learnt_reward=reward, oracle_reward=oracle_reward)
+        if terminated or truncated:
+            info.update(learnt_return=self._returns[0], oracle_return=self._returns[1])
+        return obs, reward, terminated, truncated, info
+
+
+class RewardModelWrapper(NonMarkovianRewardWrapper):
+    """Observation [s_t, h'_{t+1}] and reward r'_t from a trained MIL model, stepped online.
+
+    model: a `MILRewardModel` or a checkpoint path (its task must be the env's).
+    """
+
+    def __init__(self, env: gym.Env, model, task: str | None = None) -> None:
+        from ..mil import OnlineRewardModel, load_checkpoint
+
+        if isinstance(model, (str, Path)):
+            model, meta = load_checkpoint(model, task=task)
+            task = task or meta["task"]
+        if task is None:
+            raise ValueError("RewardModelWrapper needs the task (for the oracle's judgement)")
+        online = OnlineRewardModel(model)
+        if online.input_size != env.observation_space.shape[0]:
+            raise ValueError(f"the model takes states of size {online.input_size}, the env gives "
+                             f"{env.observation_space.shape[0]}")
+        super().__init__(env, online, task, augment=True, hidden_size=online.k)
+
+
+class OracleRewardWrapper(NonMarkovianRewardWrapper):
+    """The paper's baselines: the oracle's reward, with its hidden state appended (`hidden=True`)
+    or the raw state only (`hidden=False`). The oracle's hidden state is appended as it is
+    (unscaled, e.g. Timer's time index 1..100), as in the paper."""
+
+    def __init__(self, env: gym.Env, task: str, hidden: bool = True) -> None:
+        oracle = make_oracle(task)
+        super().__init__(env, OracleTracker(oracle), task, augment=hidden, hidden_size=oracle.hidden_size)
+
+
+def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None,
+                    seed: int = 0, continuous: bool = False) -> gym.Env:
+    """A task env with episode seeds `seed + e` and the reward of `reward` (one of REWARD_KINDS).
+
+    reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`).
+    """
+    from ..tasks import make_env
+
+    if reward not in REWARD_KINDS:
+        raise ValueError(f"unknown reward kind {reward!r}; use one of {', '.join(REWARD_KINDS)}")
+    env = EpisodeSeeds(make_env(task, continuous=continuous), seed)
+    if reward == "model":
+        if checkpoint is None:
+            raise ValueError("reward 'model' needs a checkpoint")
+        return RewardModelWrapper(env, checkpoint, task=task)
+    if checkpoint is not None:
+        raise ValueError(f"reward {reward!r} takes no checkpoint")
+    return OracleRewardWrapper(env, task, hidden=reward == "oracle")

@@ -1,0 +1,233 @@
+"""RL without ROS: the reward wrappers, the double-DQN target, a short run that must learn, the
+`nmrm rl` command line."""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from graph_helpers import executable
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.mil import load_checkpoint, load_train_config
+from nmrm_ros.mil.online import batched_reference
+from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.oracles import Oracle, make_oracle
+from nmrm_ros.rl import (EpisodeSeeds, NonMarkovianRewardWrapper, OracleRewardWrapper,
+                         RewardModelWrapper, double_q_target, evaluate_agent, load_rl_config,
+                         make_algorithm, make_reward_env, train_agent)
+from nmrm_ros.oracles.base import OracleTracker
+from nmrm_ros.tasks import make_env
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory):
+    """Small CSC models of Key and Timer (a few epochs: only their wiring matters here)."""
+    out = {}
+    for task in ("key", "timer"):
+        ds = generate_screened(task, 200, seed=0)
+        path = tmp_path_factory.mktemp("ckpt") / f"{task}_csc"
+        out[task] = train_and_evaluate(ds, "csc_lstm", load_train_config(task, max_epochs=2), out=path,
+                                       progress=False).checkpoint
+    return out
+
+
+def rollout(env, actions, seed):
+    obs, _ = env.reset(seed=seed)
+    observations, rewards, infos = [obs], [], []
+    for a in actions:
+        obs, r, terminated, truncated, info = env.step(a)
+        observations.append(obs)
+        rewards.append(r)
+        infos.append(info)
+        if terminated or truncated:
+            break
+    return np.array(observations), np.array(rewards), infos
+
+
+def test_model_wrapper_serves_the_online_model_in_figure_2_order(checkpoints):
+    model, _ = load_checkpoint(checkpoints["key"])
+    actions = np.random.default_rng(1).integers(0, 5, 100)
+    plain = EpisodeSeeds(make_env("key"), 7)
+    states = [plain.reset()[0]] + [plain.step(a)[0] for a in actions]
+    states = np.array(states)                                   # s_0..s_100
+    rewards, hidden = batched_reference(model, states)          # r'_t, h'_{t+1} for t = 0..100
+
+    env = RewardModelWrapper(EpisodeSeeds(make_env("key"), 7), checkpoints["key"], task="key")
+    assert env.observation_space.shape == (4,)
+    obs, r, infos = rollout(env, actions, seed=7)
+    assert obs.shape == (101, 4)
+    np.testing.assert_array_equal(obs[:, :2], states)
+    np.testing.assert_allclose(obs[:, 2:], hidden, atol=1e-5)   # [s_t, h'_{t+1}]
+    np.testing.assert_allclose(r, rewards[:100], atol=1e-5)     # transition t gets r'_t
+    labels = make_oracle("key").label(states[None, :100])
+    np.testing.assert_array_equal([i["oracle_reward"] for i in infos], labels.rewards[0])
+    assert infos[-1]["oracle_return"] == pytest.approx(labels.returns[0])
+    assert infos[-1]["learnt_return"] == pytest.approx(float(np.sum(r)))
+    # reset() starts the hidden state again from h'_0
+    first_again, _ = env.reset(seed=7)
+    np.testing.assert_array_equal(first_again, obs[0])
+
+
+@pytest.mark.parametrize("hidden", [True, False])
+def test_oracle_wrappers_are_the_papers_baselines(hidden):
+    actions = np.random.default_rng(2).integers(0, 5, 100)
+    env = OracleRewardWrapper(EpisodeSeeds(make_env("timer"), 3), "timer", hidden=hidden)
+    obs, r, infos = rollout(env, actions, seed=3)
+    assert obs.shape == (101, 3 if hidden else 2)
+    labels = make_oracle("timer").label(obs[None, :100, :2])
+    np.testing.assert_array_equal(r, labels.rewards[0])
+    if hidden:  # Timer's hidden state is the time index h_{t+1} = t + 1
+        np.testing.assert_array_equal(obs[:, 2], np.arange(1, 102))
+    assert infos[-1]["oracle_return"] == infos[-1]["learnt_return"] == pytest.approx(labels.returns[0])
+
+
+def test_episode_seeds_follow_env_sim():
+    """Episode e resets with seed + e, like env_sim; reset(seed=s) restarts the count."""
+    env = EpisodeSeeds(make_env("key"), 5)
+    firsts = [env.reset()[0] for _ in range(3)]
+    for e, first in enumerate(firsts):
+        np.testing.assert_array_equal(first, make_env("key").reset(seed=5 + e)[0])
+    np.testing.assert_array_equal(env.reset(seed=5)[0], firsts[0])
+
+
+def test_wrappers_work_in_sb3_vector_envs(checkpoints):
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    vec = DummyVecEnv([lambda i=i: make_reward_env("key", "model", checkpoints["key"], seed=100 * i)
+                       for i in range(3)])
+    obs = vec.reset()
+    assert obs.shape == (3, 4)
+    for _ in range(100):
+        obs, rewards, dones, infos = vec.step(np.array([4, 1, 0]))
+    assert dones.all() and all("oracle_return" in i and "terminal_observation" in i for i in infos)
+    assert obs.shape == (3, 4)
+
+
+def test_make_reward_env_refuses_bad_kinds(checkpoints):
+    with pytest.raises(ValueError, match="unknown reward kind"):
+        make_reward_env("key", "bogus")
+    with pytest.raises(ValueError, match="needs a checkpoint"):
+        make_reward_env("key", "model")
+    with pytest.raises(ValueError, match="trained on task 'key'"):
+        make_reward_env("timer", "model", checkpoints["key"])
+
+
+def test_double_q_target_by_hand():
+    q_online = torch.tensor([[1.0, 5.0, 2.0], [0.0, -1.0, 3.0]])
+    q_target = torch.tensor([[10.0, 20.0, 30.0], [4.0, 5.0, 6.0]])
+    rewards = torch.tensor([[1.0], [0.5]])
+    dones = torch.tensor([[0.0], [1.0]])
+    y = double_q_target(q_online, q_target, rewards, dones, 0.9)
+    # row 0: online argmax = action 1 -> target 20 (plain DQN would take 30); row 1: terminal
+    np.testing.assert_allclose(y.numpy(), [[1.0 + 0.9 * 20.0], [0.5]])
+
+
+def test_double_dqn_train_uses_the_double_target():
+    """One gradient step of DoubleDQN equals a hand-made step on the same batch with the double
+    target (and differs from SB3's max target)."""
+    env = make_reward_env("key", "oracle", seed=0)
+    cfg = load_rl_config("dqn", episodes=2, learning_starts=0, batch_size=8)
+    model = make_algorithm(env, "dqn", cfg, episode_length=100, seed=0)
+    model.learn(total_timesteps=20)   # fills the buffer (and trains; we only need the state after)
+    state = {k: v.clone() for k, v in model.policy.state_dict().items()}
+    opt_state = copy.deepcopy(model.policy.optimizer.state_dict())
+    np.random.seed(123)
+    torch.manual_seed(123)
+    batch = model.replay_buffer.sample(8)
+    with torch.no_grad():
+        y = double_q_target(model.q_net(batch.next_observations), model.q_net_target(batch.next_observations),
+                            batch.rewards, batch.dones, model.gamma)
+        plain = batch.rewards + (1 - batch.dones) * model.gamma * model.q_net_target(
+            batch.next_observations).max(dim=1, keepdim=True).values
+    assert not torch.allclose(y, plain)  # the batch tells the two targets apart
+    q = torch.gather(model.q_net(batch.observations), 1, batch.actions.long())
+    loss = torch.nn.functional.smooth_l1_loss(q, y)
+    model.policy.optimizer.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.policy.parameters(), model.max_grad_norm)
+    model.policy.optimizer.step()
+    expected = {k: v.clone() for k, v in model.policy.state_dict().items()}
+    model.policy.load_state_dict(state)
+    model.policy.optimizer.load_state_dict(opt_state)
+    np.random.seed(123)
+    torch.manual_seed(123)
+    model.train(gradient_steps=1, batch_size=8)
+    for k, v in model.policy.state_dict().items():
+        torch.testing.assert_close(v, expected[k], msg=k)
+
+
+class _GoRightOracle(Oracle):
+    """An easy test task: reward x_t per step (a learnable preference for the right-hand side)."""
+
+    task = "go_right"
+    hidden_size = 1
+
+    def initial_hidden(self, n=1):
+        return np.zeros((n, 1))
+
+    def step(self, hidden, states, actions=None):
+        states = self.check_states(states)
+        return hidden + 1.0, states[:, 0].copy()
+
+
+def test_a_short_run_learns_better_than_random():
+    """Double DQN with the paper's network on 10-step episodes of an easy reward: after 3000
+    steps the greedy policy's oracle return is well above a random policy's on the same episodes."""
+    torch.set_num_threads(1)
+    oracle = _GoRightOracle()
+
+    def env(seed):
+        base = EpisodeSeeds(make_env("key", episode_length=10), seed)
+        return NonMarkovianRewardWrapper(base, OracleTracker(oracle), oracle, augment=False, hidden_size=1)
+
+    cfg = load_rl_config("dqn", episodes=300, exploration_episodes=100, learning_starts=200)
+    model = make_algorithm(env(0), "dqn", cfg, episode_length=10, seed=0)
+    model.learn(total_timesteps=3000)
+    result = evaluate_agent(model, "key", episodes=30, seed=10**6, reward="oracle-no-hidden",
+                            env=env(10**6))
+    print(result.summary())
+    assert result.returns.mean() > result.random_returns.mean() + 1.0, result.summary()
+
+
+def nmrm(*args, timeout=120):
+    return subprocess.run([executable("nmrm"), "rl", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_cli_train_and_evaluate(tmp_path, checkpoints):
+    out = tmp_path / "agent"
+    res = nmrm("train", "--task", "key", "--reward", "model", "--checkpoint", str(checkpoints["key"]),
+               "--episodes", "3", "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    assert "3 episodes, 300 steps" in res.stdout
+    for name in ("policy.zip", "curve.csv", "curve.png", "agent.json"):
+        assert (out / name).stat().st_size > 0
+    rows = (out / "curve.csv").read_text().splitlines()
+    assert rows[0] == "episode,oracle_return,learnt_return,steps,wall_time" and len(rows) == 4
+    res = nmrm("evaluate", "--policy", str(out / "policy.zip"), "--task", "key", "--episodes", "3")
+    assert res.returncode == 0, res.stderr
+    assert "reward model: oracle return over 3 episodes: policy" in res.stdout and "random policy" in res.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--task", "key", "--reward", "bogus"], "unknown reward kind 'bogus'"),
+    (["--task", "key", "--reward", "model"], "needs --checkpoint"),
+    (["--task", "nowhere", "--reward", "oracle"], "unknown task 'nowhere'"),
+    (["--task", "key", "--reward", "oracle", "--episodes", "0"], "--episodes must be at least 1"),
+])
+def test_cli_train_errors(tmp_path, args, message):
+    res = nmrm("train", *args, "--out", str(tmp_path / "x"))
+    assert res.returncode != 0
+    assert message in res.stderr and "Traceback" not in res.stderr
+
+
+def test_cli_refuses_a_checkpoint_of_another_task(tmp_path, checkpoints):
+    res = nmrm("train", "--task", "key", "--reward", "model", "--checkpoint", str(checkpoints["timer"]),
+               "--episodes", "1", "--out", str(tmp_path / "x"))
+    assert res.returncode != 0
+    assert "trained on task 'timer', not 'key'" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "x").exists()

@@ -1,0 +1,107 @@
+"""Learning through the ROS graph (agent policy:=learn): real node processes over real topics."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from graph_helpers import REPO, executable, finish, start
+from nmrm_ros.bags import load_bag_dataset
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.mil import load_train_config
+from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.rl import train_agent
+
+LEARN_LAUNCH = REPO / "launch_scripts" / "learn.launch.yaml"
+
+
+@pytest.fixture(scope="module")
+def key_checkpoint(tmp_path_factory):
+    ds = generate_screened("key", 200, seed=0)
+    path = tmp_path_factory.mktemp("ckpt") / "key_csc"
+    return train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=2), out=path,
+                              progress=False).checkpoint
+
+
+def test_graph_learner_sees_the_same_transitions_as_the_wrapper(ros_domain, tmp_path, key_checkpoint):
+    """env_sim -> reward_model (a CSC checkpoint) -> agent learning, seed 3, 2 episodes, learning
+    from step 50: the agent's replay buffer equals the one of the same run through the gymnasium
+    wrapper (observations [s_t, h'_{t+1}], actions, rewards r'_t, next observations, dones), so the
+    wrapper's rewards are the reward_model node's and learning is the same with or without ROS."""
+    out = tmp_path / "policy"
+    procs = [
+        start("reward_model", mode="model", checkpoint=key_checkpoint, task="key", exit_with_upstream=True),
+        start("agent", task="key", policy="learn", seed=3, episodes=2, learning_starts=50, out=out,
+              save_replay_buffer=True, log_every=1, exit_with_upstream=True),
+        start("env_sim", task="key", seed=3, episodes=2, wait_for_nodes="[reward_model]"),
+    ]
+    outputs = [finish(p, timeout=120) for p in procs]
+    for code, text in outputs:
+        assert code == 0, text
+    assert "learner finished 2 episodes" in outputs[1][1]
+    meta = json.loads((out / "agent.json").read_text())
+    assert meta["episodes_done"] == 2 and meta["reward"] == "model"
+
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    graph = load_from_pkl(out / "replay_buffer.pkl")
+    torch.set_num_threads(1)
+    run = train_agent("key", "model", checkpoint=key_checkpoint, episodes=2, seed=3, progress=False,
+                      learning_starts=50)
+    local = run.model.replay_buffer
+    assert graph.pos == local.pos == 200
+    for field in ("observations", "actions", "rewards", "next_observations", "dones", "timeouts"):
+        np.testing.assert_array_equal(getattr(graph, field)[:200], getattr(local, field)[:200], err_msg=field)
+    # and the learnt weights after 150 gradient steps
+    from stable_baselines3 import DQN
+
+    graph_model = DQN.load(out / "policy.zip", device="cpu")
+    for k, v in run.model.policy.state_dict().items():
+        torch.testing.assert_close(graph_model.policy.state_dict()[k], v, msg=k)
+
+
+def learn_launch(tmp_path, *arguments):
+    return subprocess.Popen([executable("nmrm"), "launch", str(LEARN_LAUNCH), f"out:={tmp_path / 'learn'}",
+                             *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def test_learn_launch_file_learns_records_and_saves(ros_domain, tmp_path):
+    code, out = finish(learn_launch(tmp_path, "task:=key", "episodes:=3", "mode:=oracle", "save_every:=2",
+                                    "learning_starts:=100"), timeout=180)
+    assert code == 0, out
+    assert "all 5 node(s) exited cleanly" in out
+    assert "saved " in out and "after 2 episode(s)" in out and "after 3 episode(s)" in out
+    policy = tmp_path / "learn" / "policy"
+    rows = (policy / "curve.csv").read_text().splitlines()
+    assert len(rows) == 4
+    # the oracle labeller's returns reach the curve (episode ids 0..2)
+    assert [r.split(",")[0] for r in rows[1:]] == ["0", "1", "2"]
+    assert all(r.split(",")[1] != "nan" for r in rows[1:])
+    ds, report = load_bag_dataset([tmp_path / "learn" / "bag"])
+    assert len(ds) == 3, report
+
+
+def test_sigint_saves_the_policy(ros_domain, tmp_path):
+    proc = learn_launch(tmp_path, "task:=key", "episodes:=1000", "mode:=oracle", "save_every:=0")
+    deadline = time.monotonic() + 90
+    seen = []
+    for line in proc.stdout:  # wait until the agent has started learning, then one second more
+        seen.append(line)
+        if "[agent]" in line and "learning dqn" in line:
+            break
+        assert time.monotonic() < deadline, "".join(seen)
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    code, out = finish(proc, timeout=60)
+    out = "".join(seen) + out
+    policy = tmp_path / "learn" / "policy"
+    assert (policy / "policy.zip").stat().st_size > 0, out
+    meta = json.loads((policy / "agent.json").read_text())
+    assert meta["outcome"] == "stopped by shutdown", out
+    assert "learner stopped by shutdown" in out
