@@ -132,107 +132,24 @@ def demo(
     live_episodes: int = typer.Option(30, help="episodes collected with the live graph"),
     screened: int = typer.Option(1500, help="screened episodes generated in-process"),
     epochs: int = typer.Option(100, help="max training epochs"),
-    seed: int = typer.Option(0, help="seed of data, split and weights"),
+    agent_episodes: int = typer.Option(150, help="episodes of the DQN agent trained through the graph"),
+    seed: int = typer.Option(0, help="seed of data, split, weights and agent"),
     out: Path = typer.Option(Path("runs/demo"), help="output directory (replaced)"),
 ) -> None:
-    """The main job, end to end on a small task:
-
-    1. collect episodes with the live graph (env_sim, random agent, oracle labeller, recorder)
-       into a bag;
-    2. generate screened episodes in-process into a second bag (random-policy episodes rarely
-       reach the Key task's rewards; screening balances the dataset);
-    3. train a CSC Instance Space LSTM from both bags and the task's sample bag in bags/ (if
-       there is one);
-    4. serve it with the reward_model node on a replay of the live bag, record what it publishes,
-       and compare the served rewards with the oracle's ground truth recorded in the live bag.
-    """
-    import shutil
-    import time
-
-    import numpy as np
-
-    from .bags import BagError, iter_decoded, load_bag_dataset, write_dataset_bag
-    from .datasets import generate_screened
-    from .launcher import parse_launch_file, run
-    from .mil import evaluate as evaluate_model, load_train_config
-    from .mil.pipeline import train_and_evaluate
+    """The main job, end to end on a small task (nmrm_ros/demo.py): collect episodes with the live
+    graph, generate screened ones, train a CSC LSTM reward model from the bags, serve it on a replay
+    and compare with the oracle, then train a DQN agent through the graph on the served reward and
+    judge its greedy policy by the oracle against a random policy."""
+    from .demo import DemoError, run_demo
     from .tasks import NAVIGATION_TASKS
 
     if task not in NAVIGATION_TASKS:
         raise typer.BadParameter(f"the demo runs a navigation task {NAVIGATION_TASKS}, not {task!r}")
-    launch_dir = _launch_dir()
-    shutil.rmtree(out, ignore_errors=True)
-    out.mkdir(parents=True)
-    live, gen, served, ckpt = out / "live", out / "screened", out / "served", out / "csc"
-    t0 = time.perf_counter()
-
-    typer.echo(f"[1/4] live graph: {live_episodes} {task} episodes -> {live}")
-    code = run(parse_launch_file(launch_dir / "collect.launch.yaml", {
-        "task": task, "episodes": str(live_episodes), "seed": str(seed), "out": str(live)}))
-    if code != 0:
-        raise typer.Exit(code)
-
-    typer.echo(f"[2/4] screened episodes: {screened} -> {gen}")
-    write_dataset_bag(generate_screened(task, screened, seed=seed), gen, first_episode=10**6)
-
-    bags_dir = _repo_dir("bags")
-    sample = bags_dir / f"{task}_screened" if bags_dir else None
-    sources = [live, gen] + ([sample] if sample is not None and sample.is_dir() else [])
-    typer.echo(f"[3/4] training csc_lstm from {' + '.join(map(str, sources))}")
-    ds, report = load_bag_dataset(sources)
-    typer.echo(f"      {report}")
-    cfg = load_train_config(task, max_epochs=epochs, seed=seed)
-    run_ = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=seed, out=ckpt,
-                              data_source="bags:" + ",".join(map(str, sources)))
-    m = run_.test_metrics
-    typer.echo(f"      best epoch {run_.train.best_epoch}, {run_.train.seconds:.1f} s; test return MSE "
-               f"{m['return_mse']:.4f} (label variance {ds.returns.var():.3f}), reward MSE "
-               f"{m['reward_mse']:.5f}; checkpoint {run_.checkpoint}")
-
-    typer.echo(f"[4/4] reward_model node on a replay of {live} -> {served}")
-    code = run(parse_launch_file(launch_dir / "serve_replay.launch.yaml", {
-        "bag": str(live), "checkpoint": str(run_.checkpoint), "out": str(served)}))
-    if code != 0:
-        raise typer.Exit(code)
     try:
-        served_rewards = {(int(msg.episode), int(msg.step)): float(msg.reward)
-                          for _, t, _, msg in iter_decoded(served) if t.endswith("RewardStep")}
-        truth, _ = load_bag_dataset([live])
-    except BagError as exc:
-        raise typer.BadParameter(str(exc)) from None
-    errors, returns = [], []
-    for i, e in enumerate(truth.meta["episodes"]):
-        length = int(truth.lengths[i])
-        r = np.array([served_rewards[(e, t)] for t in range(length)])
-        errors.append((r - truth.rewards[i, :length]) ** 2)
-        returns.append((r.sum(), truth.returns[i]))
-    err = np.concatenate(errors)
-    live_eval = evaluate_model(run_.model, truth)
-    typer.echo(f"      {len(served_rewards)} rewards served for {len(returns)} episodes; served reward "
-               f"MSE vs oracle {err.mean():.5f} (offline model on the same episodes: "
-               f"{live_eval['reward_mse']:.5f})")
-    typer.echo("      the 5 live episodes with the highest returns:")
-    for g_model, g_true in sorted(returns, key=lambda r: -r[1])[:5]:
-        typer.echo(f"      return: oracle {g_true:6.2f}, served model {g_model:6.2f}")
-    typer.echo(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}/")
-
-
-def _repo_dir(name: str) -> Path | None:
-    """A top-level folder of the source tree (the working directory's, or this file's), if any."""
-    for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
-        if (base / name).is_dir() and (base / "package.xml").is_file():
-            return base / name
-    return None
-
-
-def _launch_dir() -> Path:
-    """launch_scripts/ of the source tree, else of the installed share directory."""
-    here = _repo_dir("launch_scripts")
-    if here is not None:
-        return here
-    from ament_index_python.packages import get_package_share_directory
-
-    return Path(get_package_share_directory("nmrm_ros")) / "launch_scripts"
+        run_demo(task, live_episodes, screened, epochs, agent_episodes, seed, out, echo=typer.echo)
+    except DemoError as exc:
+        typer.echo(f"demo failed: {exc}", err=True)
+        raise typer.Exit(1) from None
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})

@@ -101,3 +101,22 @@ def test_dataset_save_load_round_trip(tmp_path):
     assert back.task == "moving" and back.meta == ds.meta
     for k in ("states", "actions", "returns", "rewards", "hidden", "lengths", "classes", "final_states"):
         np.testing.assert_array_equal(getattr(back, k), getattr(ds, k))
+
+
+def test_deduplicated_drops_exact_repeats_only():
+    """The dedup rule: same states (final observation included) and same label = same episode."""
+    from nmrm_ros.datasets import generate_screened
+
+    ds = generate_screened("key", 30, seed=1)
+    twice = ds.subset(np.r_[np.arange(30), [3, 7, 7]])
+    twice.meta["episodes"] = list(range(33))
+    relabelled = twice.subset(np.arange(33))
+    relabelled.returns = relabelled.returns.copy()
+    relabelled.returns[32] += 1.0                     # same states, another label: kept
+    out, dropped = twice.deduplicated()
+    assert dropped == 3 and len(out) == 30
+    np.testing.assert_array_equal(out.states, ds.states)
+    assert out.meta["episodes"] == list(range(30))
+    out2, dropped2 = relabelled.deduplicated()
+    assert dropped2 == 2 and len(out2) == 31
+    assert ds.deduplicated() == (ds, 0)

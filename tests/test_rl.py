@@ -185,7 +185,7 @@ def test_a_short_run_learns_better_than_random():
         base = EpisodeSeeds(make_env("key", episode_length=10), seed)
         return NonMarkovianRewardWrapper(base, OracleTracker(oracle), oracle, augment=False, hidden_size=1)
 
-    cfg = load_rl_config("dqn", episodes=300, exploration_episodes=100, learning_starts=200)
+    cfg = load_rl_config("dqn", episodes=300, exploration_fraction=0.33, learning_starts=200)
     model = make_algorithm(env(0), "dqn", cfg, episode_length=10, seed=0)
     model.learn(total_timesteps=3000)
     result = evaluate_agent(model, "key", episodes=30, seed=10**6, reward="oracle-no-hidden",

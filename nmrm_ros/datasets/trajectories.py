@@ -46,6 +46,28 @@ class TrajectoryDataset:
                                  pick(self.actions), pick(self.final_states), pick(self.classes),
                                  dict(self.meta))
 
+    def deduplicated(self) -> tuple["TrajectoryDataset", int]:
+        """(this dataset without repeated episodes, how many were dropped). Two episodes are the
+        same when their states (s_0..s_len, the final observation included) and their label are
+        equal, bit for bit; the first one is kept. Used where bags from different sources are
+        merged, so that one episode cannot be in both the training and the test split."""
+        seen: set = set()
+        keep = []
+        for i in range(len(self)):
+            n = int(self.lengths[i])
+            key = (self.states[i, :n].tobytes(), float(self.returns[i]),
+                   None if self.final_states is None else self.final_states[i].tobytes())
+            if key not in seen:
+                seen.add(key)
+                keep.append(i)
+        if len(keep) == len(self):
+            return self, 0
+        out = self.subset(np.asarray(keep, dtype=np.int64))
+        episodes = self.meta.get("episodes")
+        if isinstance(episodes, list) and len(episodes) == len(self):
+            out.meta["episodes"] = [episodes[i] for i in keep]
+        return out, len(self) - len(keep)
+
     def save(self, path: str | Path) -> Path:
         """Write an .npz (arrays) with the task and meta as JSON inside."""
         path = Path(path)

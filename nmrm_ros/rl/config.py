@@ -47,10 +47,11 @@ def load_rl_config(algo: str, path: str | Path | None = None, **overrides) -> di
 def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0, verbose: int = 0):
     """The SB3 model for `env` (a gymnasium Env or VecEnv) from a config section.
 
-    episode_length: steps per episode T (the epsilon schedule is given in episodes; with fixed-length
-    episodes it is SB3's step schedule over `episodes * T` steps).
+    episode_length: steps per episode T (SB3 plans its epsilon schedule over `episodes * T` steps).
     """
     total = int(cfg["episodes"]) * int(episode_length)
+    policy_kwargs = {"net_arch": list(cfg["net_arch"]),
+                     "optimizer_kwargs": {"fused": bool(cfg.get("fused_adam", False))}}
     if algo == "dqn":
         from .double_dqn import DoubleDQN
 
@@ -61,10 +62,10 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
             tau=cfg["tau"], gamma=cfg["gamma"], train_freq=int(cfg["train_freq"]),
             gradient_steps=int(cfg["gradient_steps"]),
             target_update_interval=int(cfg["target_update_interval"]),
-            exploration_fraction=int(cfg["exploration_episodes"]) * episode_length / total,
+            exploration_fraction=float(cfg["exploration_fraction"]),
             exploration_initial_eps=cfg["exploration_initial_eps"],
             exploration_final_eps=cfg["exploration_final_eps"], max_grad_norm=cfg["max_grad_norm"],
-            double_q=bool(cfg["double_q"]), policy_kwargs={"net_arch": list(cfg["net_arch"])})
+            double_q=bool(cfg["double_q"]), policy_kwargs=policy_kwargs)
     if algo == "sac":
         from .sac import SplitLRSAC
 
@@ -74,5 +75,5 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
             buffer_size=int(cfg["buffer_size"]), learning_starts=int(cfg["learning_starts"]),
             batch_size=int(cfg["batch_size"]), tau=cfg["tau"], gamma=cfg["gamma"],
             train_freq=int(cfg["train_freq"]), gradient_steps=int(cfg["gradient_steps"]),
-            ent_coef=cfg["ent_coef"], policy_kwargs={"net_arch": list(cfg["net_arch"])})
+            ent_coef=cfg["ent_coef"], policy_kwargs=policy_kwargs)
     raise ValueError(f"unknown algorithm {algo!r}: use dqn or sac")
