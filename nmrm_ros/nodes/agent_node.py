@@ -240,7 +240,7 @@ class Learner:
         from ..rl import EpisodeCurveCallback, make_algorithm
         from ..ros.topic_env import LearnerStopped
 
-        torch.set_num_threads(1)
+        torch.set_num_threads(int(self.cfg.get("threads", 1)))
         log = self.node.get_logger()
         try:
             vec = DummyVecEnv([lambda: Monitor(self.env)])
