@@ -31,11 +31,50 @@ def test_charger_hidden_state_in_unit_interval(states):
     assert np.all(np.diff(h) >= 0)  # charge never drains
 
 
+def _in_treasure(x, y, left=0.4):
+    return left <= x <= left + 0.2 and 0.7 <= y <= 0.9
+
+
+def _paper_return(task: str, states: np.ndarray) -> float:
+    """The return of one trajectory written straight from the paper's App. D.1 definitions, step
+    by step in plain Python (an independent check of the vectorised oracles)."""
+    total, key, charge = 0.0, False, 0.0
+    left, velocity = 0.4, -0.02
+    for t, (x, y) in enumerate(states.astype(np.float64)):
+        if task == "timer":  # h_{t+1} = t + 1; -1 in the treasure while h_{t+1} <= 50, +1 after
+            total += (-1.0 if t + 1 <= 50 else 1.0) * _in_treasure(x, y)
+        elif task == "key":
+            key = key or (0.4 <= x <= 0.6 and 0.1 <= y <= 0.3)
+            total += float(key and _in_treasure(x, y))
+        elif task == "charger":
+            if y <= 0.3:
+                charge = min(round(charge + 0.02, 10), 1.0)
+            total += charge * _in_treasure(x, y)
+        elif task == "moving":
+            left = round(left + velocity, 10)
+            if not 0.0 < left < 0.8:
+                velocity = -velocity
+            total += float(_in_treasure(x, y, left))
+    return total
+
+
 @settings(max_examples=100, deadline=None)
 @given(trajectories, st.sampled_from(["timer", "moving", "key", "charger"]))
-def test_rewards_sum_to_return(states, task):
+def test_returns_match_the_papers_definitions(states, task):
     labels = make_oracle(task).label(states)
-    assert np.isclose(labels.rewards.sum(), labels.returns[0])
+    assert labels.returns[0] == _paper_return(task, states[0])
+
+
+def test_paper_returns_by_hand():
+    """A few trajectories whose returns are known without any code."""
+    treasure, key_zone, elsewhere = [0.5, 0.8], [0.5, 0.2], [0.1, 0.5]
+    path = np.array([[elsewhere] * 10 + [treasure] * 50 + [key_zone] * 5 + [treasure] * 35], np.float32)
+    # timer: steps 10..49 are t+1 <= 50 (40 x -1), 50..59 and 65..99 after (45 x +1)
+    assert make_oracle("timer").label(path).returns[0] == 5.0
+    # key: the treasure counts only after the key (35 steps)
+    assert make_oracle("key").label(path).returns[0] == 35.0
+    # charger: 5 steps in the key zone (y <= 0.3) charge 0.1; 35 treasure steps at 0.1
+    assert np.isclose(make_oracle("charger").label(path).returns[0], 3.5)
 
 
 lander_states = st.integers(1, 80).flatmap(lambda n: arrays(
@@ -53,4 +92,3 @@ def test_lunar_lander_components_sum_to_reward(states, contacts):
     parts = oracle.label_components(states)
     np.testing.assert_allclose(sum(parts.values()), labels.rewards)
     assert np.all(labels.rewards >= 0)
-    assert np.isclose(labels.rewards.sum(), labels.returns[0])

@@ -231,3 +231,18 @@ def test_cli_refuses_a_checkpoint_of_another_task(tmp_path, checkpoints):
     assert res.returncode != 0
     assert "trained on task 'timer', not 'key'" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_sac_on_lunar_lander_keeps_the_papers_two_learning_rates():
+    """Lunar Lander gets SAC; after training steps the actor's Adam runs at 1e-4, the critic's at
+    1e-3 (App. E), alpha fixed at 0.2, and an episode's oracle return reaches the info."""
+    torch.set_num_threads(1)
+    run = train_agent("lunar_lander", "oracle", episodes=1, seed=0, progress=False, learning_starts=400)
+    model = run.model
+    assert type(model).__name__ == "SplitLRSAC"
+    assert [g["lr"] for g in model.actor.optimizer.param_groups] == [1e-4]
+    assert [g["lr"] for g in model.critic.optimizer.param_groups] == [1e-3]
+    assert float(model.ent_coef_tensor) == pytest.approx(0.2)
+    assert model._n_updates == 100   # steps 400..499 trained, one update each
+    assert len(run.curve.records) == 1 and np.isfinite(run.curve.records[0].oracle_return)
+    assert model.observation_space.shape == (9,)  # 8-D state + the oracle's time-on-pad counter
