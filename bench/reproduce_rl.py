@@ -103,8 +103,12 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"))
     parser.add_argument("--models-only", action="store_true", help="train the reward models and stop")
     parser.add_argument("--results", type=Path, default=Path("bench/results"))
+    parser.add_argument("--report-only", action="store_true", help="only tabulate and plot the runs done so far")
     args = parser.parse_args()
     start = time.perf_counter()
+    if args.report_only:
+        report(args, 0.0)
+        return
 
     model_jobs = [(args.work, t, KINDS[k][1], s) for s in args.seeds for t in args.tasks
                   for k in args.kinds if KINDS[k][1]]
@@ -136,10 +140,10 @@ def report(args, seconds: float) -> None:
     args.results.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, len(args.tasks), figsize=(4.2 * len(args.tasks), 3.4), squeeze=False)
     lines = [f"# Figure 4: final oracle return (mean of the last {FINAL_WINDOW} of {args.episodes} episodes), "
-             f"mean ± SEM over seeds {args.seeds}; worst seed in brackets",
+             f"mean ± SEM over the seeds run (n) of {args.seeds}; worst seed in brackets",
              f"# command: .venv/bin/python bench/reproduce_rl.py --tasks {' '.join(args.tasks)} "
              f"--kinds {' '.join(args.kinds)} --seeds {' '.join(map(str, args.seeds))} --episodes {args.episodes}",
-             f"{'reward':32s} " + " ".join(f"{t:>22s}" for t in args.tasks)]
+             f"{'reward':32s} " + " ".join(f"{t:>28s}" for t in args.tasks)]
     finals = {}
     for i, task in enumerate(args.tasks):
         ax = axes[0][i]
@@ -176,8 +180,8 @@ def report(args, seconds: float) -> None:
                 cells.append("-")
                 continue
             sem = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0
-            cells.append(f"{v.mean():7.2f} ± {sem:5.2f} [{v.min():6.2f}]")
-        lines.append(f"{KINDS[kind][0]:32s} " + " ".join(f"{c:>22s}" for c in cells))
+            cells.append(f"{v.mean():6.2f} ± {sem:5.2f} [{v.min():6.2f}] n={len(v)}")
+        lines.append(f"{KINDS[kind][0]:32s} " + " ".join(f"{c:>28s}" for c in cells))
     if "model" in args.kinds and "oracle" in args.kinds:
         ratios = []
         for task in args.tasks:
@@ -185,7 +189,9 @@ def report(args, seconds: float) -> None:
                 o = finals[(task, "oracle")].mean()
                 ratios.append(f"{task} {finals[(task, 'model')].mean() / o:.0%}" if o > 0 else f"{task} n/a")
         lines.append("# learnt / oracle-with-hidden final return: " + ", ".join(ratios))
-    lines.append(f"# wall time {seconds:.0f} s on {os.cpu_count()} cores; curves: {png}")
+    if seconds:
+        lines.append(f"# wall time {seconds:.0f} s on {os.cpu_count()} cores")
+    lines.append(f"# curves: {png}; per run: {args.work}/agents/*/curve.csv")
     text = "\n".join(lines)
     print(text)
     (args.results / "reproduce_rl.txt").write_text(text + "\n")
