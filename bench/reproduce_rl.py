@@ -13,7 +13,8 @@ oracle (post hoc). Hyperparameters: config/rl.yaml.
 
 Output (bench/results/): reproduce_rl.png (oracle-return curves, mean +/- SEM over seeds, a
 moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
-episodes, mean +/- SEM and worst seed), plus every run's curve.csv under --work.
+episodes, mean +/- SEM and worst seed), and every run's curve.csv + agent.json, copied to
+bench/results/reproduce_rl/agents/ (copy them into --work/agents to continue an incomplete table).
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ def train_agent_job(job: tuple) -> dict:
     reward = "model" if arch else kind
     checkpoint = model_path(work, task, arch, seed) if arch else None
     out = work / "agents" / f"{task}_{kind}_seed{seed}"
-    if (out / "curve.csv").is_file() and (out / "policy.zip").is_file():
+    if (out / "curve.csv").is_file():
         curve = read_curve(out / "curve.csv")
         if len(curve) == episodes:
             return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True}
@@ -100,7 +101,9 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=400)
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"))
+    parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"),
+                        help="models/ and agents/ (a run whose agents/NAME/curve.csv exists is not run "
+                             "again: copy bench/results/reproduce_rl/agents there to continue a table)")
     parser.add_argument("--models-only", action="store_true", help="train the reward models and stop")
     parser.add_argument("--results", type=Path, default=Path("bench/results"))
     parser.add_argument("--report-only", action="store_true", help="only tabulate and plot the runs done so far")
@@ -195,6 +198,12 @@ def report(args, seconds: float) -> None:
     text = "\n".join(lines)
     print(text)
     (args.results / "reproduce_rl.txt").write_text(text + "\n")
+    kept = args.results / "reproduce_rl" / "agents"   # the curves (not the policies) are kept in git
+    for path in sorted((args.work / "agents").glob("*/curve.csv")):
+        (kept / path.parent.name).mkdir(parents=True, exist_ok=True)
+        for name in ("curve.csv", "agent.json"):
+            if (path.parent / name).is_file():
+                (kept / path.parent.name / name).write_bytes((path.parent / name).read_bytes())
 
 
 if __name__ == "__main__":
