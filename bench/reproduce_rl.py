@@ -8,7 +8,7 @@ hidden state, the oracle without it, and the Markovian Instance Space NN.
 Seed s pairs one MIL model with one agent, as the paper does: the reward models are trained with
 weight seed s on split s of one screened dataset per task (data seed 0, 5000 episodes; the
 hyperparameters of config/mil_training.yaml) and cached under --work/models; agent s is trained
-with seed s (SB3 seed and the env's episode seeds s*10**6 + e). Every agent is judged by the
+with seed s (SB3 seed; episode e of the env is seeded s + e, as env_sim's). Every agent is judged by the
 oracle (post hoc). Hyperparameters: config/rl.yaml.
 
 Output (bench/results/): reproduce_rl.png (oracle-return curves, mean +/- SEM over seeds, a

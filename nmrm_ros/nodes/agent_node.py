@@ -129,10 +129,7 @@ class AgentNode(Node):
                 self.get_logger().warning(f"no action for episode {msg.episode} step {msg.step}: {exc}")
                 return
             self.last_key, self.last_action = key, action
-        out = AgentAction(episode=msg.episode, step=msg.step, action=action)
-        out.header.stamp = self.get_clock().now().to_msg()
-        self.pub.publish(out)
-        self.sent += 1
+        self.publish_action(msg.episode, msg.step, action)
 
     def choose(self, obs: np.ndarray) -> list:
         if self.sb3 is not None:

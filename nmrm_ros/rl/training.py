@@ -148,13 +148,13 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     torch.set_num_threads(int(cfg.get("threads", 1)))
     episodes = int(cfg["episodes"])
     env_seed = seed if env_seed is None else int(env_seed)
-    envs = [make_reward_env(task, reward, checkpoint, seed=env_seed + i * 10**6) for i in range(n_envs)]
+    seeds = [env_seed + i * 10**6 for i in range(n_envs)]
+    envs = [make_reward_env(task, reward, checkpoint, seed=s) for s in seeds]
     vec = DummyVecEnv([lambda e=e: Monitor(e) for e in envs])
-    torch.manual_seed(seed)
     model = make_algorithm(vec, algo, cfg, info.episode_length, seed=seed)
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
     # as its base, so give each env its own base (VecEnv.seed can only add the env index).
-    vec._seeds = [env_seed + i * 10**6 for i in range(n_envs)]  # noqa: SLF001 - no public setter
+    vec._seeds = seeds  # noqa: SLF001 - no public setter
     callback = EpisodeCurveCallback(max_episodes=episodes, on_episode=on_episode)
     t0 = time.perf_counter()
     model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
