@@ -4,10 +4,15 @@
     .venv/bin/python bench/reproduce_tables.py                  # quick: 1 repeat
     .venv/bin/python bench/reproduce_tables.py --repeats 10     # the paper's protocol
     .venv/bin/python bench/reproduce_tables.py --tables nav --tasks key charger --archs csc_lstm
+    .venv/bin/python bench/reproduce_tables.py --tasks timer --archs csc_lstm --set lr=1e-3
 
-Repeat r trains with weight seed r on split r (80/10/10) of one dataset per task (data seed 0),
-as the paper repeated its experiments over ten splits. Hyperparameters: config/mil_training.yaml.
-Runs go to --jobs worker processes (one torch thread each).
+Repeat r trains with weight seed r on split r (80/10/10) of one dataset per task (data seed
+--data-seed, default 0), as the paper repeated its experiments over ten splits. The repeats of one
+(task, architecture) are trained as one ensemble in one pass (nmrm_ros.mil.train_ensemble: each
+member exactly its own run, on its own split). Hyperparameters: config/mil_training.yaml, then
+--set overrides. (task, architecture) jobs go to --jobs worker processes (--threads torch
+threads each). Datasets are cached in runs/data/. Each cell shows mean +/- SEM, the worst run, and
+the paper's mean +/- SEM; "bar" is the paper's mean + 2 SEM.
 """
 
 from __future__ import annotations
@@ -48,18 +53,48 @@ PAPER_REWARD = {
 }
 
 
-def run_one(job: tuple) -> dict:
-    task, arch, repeat, n, max_epochs = job
-    from nmrm_ros.datasets import generate_screened, make_toy_dataset
-    from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+CACHE = Path(__file__).resolve().parents[1] / "runs" / "data"
 
-    ds = make_toy_dataset(task, n, seed=0) if task in TOY else generate_screened(task, n, seed=0)
-    cfg = load_train_config(task, seed=repeat, max_epochs=max_epochs)
-    run = train_and_evaluate(ds, arch, cfg, split_seed=repeat, progress=False)
-    return {"task": task, "arch": arch, "repeat": repeat, "return_mse": run.test_metrics["return_mse"],
-            "reward_mse": run.test_metrics["reward_mse"], "seconds": run.train.seconds,
-            "epochs": run.train.epochs_run, "best_epoch": run.train.best_epoch}
+
+def load_dataset(task: str, n: int, seed: int):
+    """The task's dataset (screened, or toy), cached in runs/data/."""
+    from nmrm_ros.datasets import TrajectoryDataset, generate_screened, make_toy_dataset
+
+    path = CACHE / f"{task}_n{n}_s{seed}.npz"
+    if path.is_file():
+        return TrajectoryDataset.load(path)
+    ds = make_toy_dataset(task, n, seed=seed) if task in TOY else generate_screened(task, n, seed=seed)
+    CACHE.mkdir(parents=True, exist_ok=True)
+    ds.save(path)
+    return ds
+
+
+def parse_overrides(pairs: list) -> dict:
+    """["lr=1e-3", "schedule=cosine"] -> {"lr": 0.001, "schedule": "cosine"}."""
+    import yaml
+
+    out = {}
+    for pair in pairs or []:
+        key, _, value = pair.partition("=")
+        out[key] = yaml.safe_load(value)
+    return out
+
+
+def run_ensemble(job: tuple) -> list:
+    """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
+    task, arch, repeats, n, data_seed, overrides, threads = job
+    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+
+    ds = load_dataset(task, n, data_seed)
+    cfg = load_train_config(task, seed=0, threads=threads, **overrides)
+    run = train_ensemble_and_evaluate(ds, arch, cfg, members=repeats, split_seed=0,
+                                      split_mode="per_member", progress=False)
+    return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed,
+             "return_mse": run.member_test[r]["return_mse"], "reward_mse": run.member_test[r]["reward_mse"],
+             "seconds": run.train.seconds, "epochs": run.train.epochs_run,
+             "best_epoch": run.train.best_epochs[r], "still_improving": run.train.still_improving[r],
+             "config": cfg.to_dict()} for r in range(repeats)]
 
 
 def mean_sem(values: list) -> tuple:
@@ -71,16 +106,37 @@ def fmt(ms: tuple) -> str:
     return f"{ms[0]:.3f} ± {ms[1]:.3f}"
 
 
+def fmt_value(v: float) -> str:
+    return f"{v:.4f}" if v < 10 else f"{v:.1f}"
+
+
 def print_table(results: list, tasks: tuple, metric: str, paper: dict, archs: tuple) -> None:
-    print(f"\n{metric} (test MSE; ours | paper)")
-    print(f"{'model':16s} " + " ".join(f"{t:>34s}" for t in tasks))
+    print(f"\n{metric} (test MSE; ours: mean ± SEM, worst | paper: mean ± SEM)")
+    print(f"{'model':16s} " + " ".join(f"{t:>44s}" for t in tasks))
     for arch in archs:
         cells = []
         for task in tasks:
             vals = [r[metric] for r in results if r["task"] == task and r["arch"] == arch]
-            ours = fmt(mean_sem(vals)) if vals else "-"
-            cells.append(f"{ours:>16s} | {fmt(paper[arch][task]):>15s}")
-        print(f"{arch:16s} " + " ".join(f"{c:>34s}" for c in cells))
+            ours = f"{fmt(mean_sem(vals))}, {fmt_value(max(vals))}" if vals else "-"
+            cells.append(f"{ours:>26s} | {fmt(paper[arch][task]):>15s}")
+        print(f"{arch:16s} " + " ".join(f"{c:>44s}" for c in cells))
+
+
+def print_bar_check(results: list, tasks: tuple, archs: tuple) -> None:
+    """Runs over the paper's mean + 2 SEM, per cell, and runs still improving at the epoch limit."""
+    print("\nruns over the bar (paper mean + 2 SEM) on return | reward MSE; still improving at the limit")
+    for arch in archs:
+        for task in tasks:
+            rs = [r for r in results if r["task"] == task and r["arch"] == arch]
+            if not rs:
+                continue
+            bar_ret = PAPER_RETURN[arch][task][0] + 2 * PAPER_RETURN[arch][task][1]
+            bar_rew = PAPER_REWARD[arch][task][0] + 2 * PAPER_REWARD[arch][task][1]
+            over_ret = [r["repeat"] for r in rs if r["return_mse"] > bar_ret]
+            over_rew = [r["repeat"] for r in rs if r["reward_mse"] > bar_rew]
+            improving = [r["repeat"] for r in rs if r.get("still_improving")]
+            print(f"  {arch:15s} {task:13s} bar {bar_ret:.3f} | {bar_rew:.4f}: over {len(over_ret)}/{len(rs)} "
+                  f"{over_ret} | {len(over_rew)}/{len(rs)} {over_rew}; still improving {improving}")
 
 
 def main() -> None:
@@ -91,28 +147,40 @@ def main() -> None:
     parser.add_argument("--archs", nargs="*", default=list(ARCHS))
     parser.add_argument("--n", type=int, default=5000, help="bags per dataset (paper: 5000)")
     parser.add_argument("--max-epochs", type=int, default=None, help="override (for a smoke run)")
+    parser.add_argument("--data-seed", type=int, default=0)
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="training-config overrides, e.g. lr=1e-3 schedule=cosine")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads per job")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
     args = parser.parse_args()
     tasks = tuple(t for table in args.tables for t in (TOY if table == "toy" else NAV))
     if args.tasks:
         tasks = tuple(t for t in tasks if t in args.tasks)
-    jobs = [(t, a, r, args.n, args.max_epochs) for r in range(args.repeats) for t in tasks for a in args.archs]
-    print(f"# {len(jobs)} runs: tasks {tasks}, archs {args.archs}, repeats (seeds/splits) "
-          f"0..{args.repeats - 1}, data seed 0, {args.jobs} workers", flush=True)
+    overrides = parse_overrides(args.set)
+    if args.max_epochs is not None:
+        overrides["max_epochs"] = args.max_epochs
+    jobs = [(t, a, args.repeats, args.n, args.data_seed, overrides, args.threads)
+            for t in tasks for a in args.archs]
+    print(f"# {len(jobs)} ensembles of {args.repeats}: tasks {tasks}, archs {args.archs}, repeats "
+          f"(seeds/splits) 0..{args.repeats - 1}, data seed {args.data_seed}, overrides {overrides}, "
+          f"{args.jobs} workers x {args.threads} threads", flush=True)
     start = time.perf_counter()
     results = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        for res in pool.map(run_one, jobs):
-            results.append(res)
-            print(f"  {res['task']:13s} {res['arch']:15s} seed {res['repeat']}: return {res['return_mse']:.4f} "
-                  f"reward {res['reward_mse']:.5f} ({res['epochs']} epochs, best {res['best_epoch']}, "
-                  f"{res['seconds']:.0f} s)", flush=True)
+        for runs in pool.map(run_ensemble, jobs):
+            results.extend(runs)
+            for res in runs:
+                print(f"  {res['task']:13s} {res['arch']:15s} seed {res['repeat']}: return {res['return_mse']:.4f} "
+                      f"reward {res['reward_mse']:.5f} (best epoch {res['best_epoch']}/{res['epochs']}"
+                      f"{', still improving' if res['still_improving'] else ''}; ensemble {res['seconds']:.0f} s)",
+                      flush=True)
     for group in (TOY, NAV):
         sel = tuple(t for t in tasks if t in group)
         if sel:
             print_table(results, sel, "return_mse", PAPER_RETURN, tuple(args.archs))
             print_table(results, sel, "reward_mse", PAPER_REWARD, tuple(args.archs))
+            print_bar_check(results, sel, tuple(args.archs))
     print(f"\n# wall time {time.perf_counter() - start:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

@@ -260,10 +260,13 @@ def train(
     lr: float = typer.Option(None, help="override the learning rate"),
     batch_size: int = typer.Option(None, help="override the batch size"),
     config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)"),
+    ensemble: int = typer.Option(1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1)"),
+    split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
 ) -> None:
-    """Train a MIL reward model (early stopping on validation return MSE) and evaluate it."""
+    """Train a MIL reward model or an ensemble (early stopping on validation return MSE) and
+    evaluate it on the test split."""
     from .mil import ARCHITECTURES, load_train_config
-    from .mil.pipeline import train_and_evaluate
+    from .mil.pipeline import SPLIT_MODES, train_and_evaluate
 
     if arch not in ARCHITECTURES:
         raise typer.BadParameter(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
@@ -275,11 +278,39 @@ def train(
                      batch_size=batch_size, seed=seed)
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}")
+    if ensemble > 1:
+        if split_mode not in SPLIT_MODES:
+            raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}")
+        _train_ensemble(ds, arch, cfg, ensemble, split_seed, split_mode, out, source)
+        return
+    if ensemble < 1:
+        raise typer.BadParameter(f"--ensemble must be at least 1, got {ensemble}")
     run = train_and_evaluate(ds, arch, cfg, split_seed=split_seed, out=out, data_source=source)
     m = run.test_metrics
     typer.echo(f"best epoch {run.train.best_epoch}/{run.train.epochs_run} in {run.train.seconds:.1f} s; "
                f"test return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f} "
                f"({m['bags']} bags)")
+    if run.train.still_improving:
+        typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
+    typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
+
+
+def _train_ensemble(ds, arch, cfg, members, split_seed, split_mode, out, source) -> None:
+    from .mil.pipeline import train_ensemble_and_evaluate
+
+    run = train_ensemble_and_evaluate(ds, arch, cfg, members, split_seed=split_seed,
+                                      split_mode=split_mode, out=out, data_source=source)
+    typer.echo(f"{members} members in one pass: {run.train.epochs_run} epochs in {run.train.seconds:.1f} s")
+    for m, test in enumerate(run.member_test):
+        flag = ", still improving at the limit" if run.train.still_improving[m] else ""
+        typer.echo(f"  member {m} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
+                   f"{run.train.best_epochs[m]}; test return MSE {test['return_mse']:.4f}, "
+                   f"reward MSE {test['reward_mse']:.5f}{flag}")
+    if run.ensemble_test is not None:
+        m = run.ensemble_test
+        typer.echo(f"ensemble mean: test return MSE {m['return_mse']:.4f}, reward MSE "
+                   f"{m['reward_mse']:.5f}, mean return std {m['return_std']:.4f} ({m['bags']} bags)")
+    typer.echo(f"serving member (hidden state): {int(run.ensemble.serving_member)}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
 
 
@@ -326,7 +357,8 @@ def evaluate(
             raise typer.BadParameter(f"--split must be one of {names + ('all',)}")
         ds = ds.subset(split_indices(len(ds), meta.get("split_seed", 0))[names.index(split)])
     m = evaluate_model(model, ds)
-    typer.echo(f"{model.config.architecture} on {ds.task} ({split}, {m['bags']} bags): "
+    what = f"{meta['ensemble']['members']}-member ensemble of " if meta.get("ensemble") else ""
+    typer.echo(f"{what}{model.config.architecture} on {ds.task} ({split}, {m['bags']} bags): "
                f"return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f}")
 
 

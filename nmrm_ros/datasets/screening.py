@@ -31,7 +31,7 @@ from ..oracles import make_oracle
 from ..oracles.base import OracleLabels
 from ..tasks import NAVIGATION_TASKS, check_task
 from ..tasks.navigation import EPISODE_LENGTH, TREASURE_ZONE, rollout_random
-from .trajectories import TrajectoryDataset
+from .trajectories import TrajectoryDataset, concatenate
 
 KEY_CLASS_NAMES = ("no_key", "key_no_treasure", "treasure", "treasure_no_key")
 
@@ -194,7 +194,7 @@ def screen_navigation(task: str, n_target: int = 5000, seed: int = 0, batch: int
         if progress is not None:
             progress(screener.kept, screener.examined)
     seconds = time.perf_counter() - start
-    return _concat(task, parts, {"seed": seed, "generator": "random_policy_screening",
+    return concatenate(parts, {"seed": seed, "generator": "random_policy_screening",
                                  "draws": screener.examined, "seconds": seconds,
                                  "key_fourth_class": key_fourth_class, "batch": batch})
 
@@ -251,10 +251,3 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, **kwargs) 
         return screen_lunar_lander(pool_size=pool_size, seed=seed, n_target=n_target, **kwargs)
     kwargs.pop("pool_size", None)
     return screen_navigation(task, n_target=n_target, seed=seed, **kwargs)
-
-
-def _concat(task: str, parts: list, meta: dict) -> TrajectoryDataset:
-    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
-    return TrajectoryDataset(task, cat("states"), cat("lengths"), cat("returns"), cat("rewards"),
-                             cat("hidden"), cat("actions"), cat("final_states"), cat("classes"),
-                             meta)

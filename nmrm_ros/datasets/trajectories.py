@@ -86,3 +86,24 @@ class TrajectoryDataset:
             return cls(header["task"], z["states"], z["lengths"], z["returns"], z["rewards"],
                        z["hidden"], get("actions"), get("final_states"), get("classes"),
                        header["meta"])
+
+
+def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
+    """One dataset of `parts` (same task and state size) in order, padded to the longest length;
+    an optional field (actions, final_states, classes) is kept only if every part has it."""
+    if not parts:
+        raise ValueError("nothing to concatenate")
+    width = max(p.states.shape[1] for p in parts)
+
+    def cat(name: str):
+        arrays = [getattr(p, name) for p in parts]
+        if any(a is None for a in arrays):
+            return None
+        if name in ("states", "rewards", "hidden", "actions"):
+            arrays = [np.pad(a, [(0, 0), (0, width - a.shape[1])] + [(0, 0)] * (a.ndim - 2))
+                      for a in arrays]
+        return np.concatenate(arrays)
+
+    return TrajectoryDataset(parts[0].task, cat("states"), cat("lengths"), cat("returns"),
+                             cat("rewards"), cat("hidden"), cat("actions"), cat("final_states"),
+                             cat("classes"), dict(parts[0].meta) if meta is None else meta)

@@ -1,7 +1,9 @@
 """Checkpoints: a plain state dict (`<name>.pt`, loaded with weights_only=True) beside JSON
 metadata (`<name>.json`: architecture and sizes, task, normalisation, training config, seed,
-metrics, package version). A checkpoint that does not match what the caller asks for, or whose
-weights do not match its own metadata, is refused with a clear error."""
+metrics, package version). An ensemble checkpoint (`nmrm train --ensemble K`) holds all K members'
+stacked weights and says so in its metadata ("ensemble": members, seeds, serving member);
+`load_checkpoint` then returns a `MILEnsemble`. A checkpoint that does not match what the caller
+asks for, or whose weights do not match its own metadata, is refused with a clear error."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from pathlib import Path
 import torch
 
 from .. import __version__
+from .ensemble import MILEnsemble
 from .models import ModelConfig, MILRewardModel, build_model
 
 FORMAT = "nmrm_ros.mil_checkpoint/1"
@@ -27,7 +30,7 @@ def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
     return stem.with_suffix(".pt"), stem.with_suffix(".json")
 
 
-def save_checkpoint(model: MILRewardModel, path: str | Path, task: str, **meta) -> Path:
+def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task: str, **meta) -> Path:
     """Write `<path>.pt` and `<path>.json`; returns the .pt path."""
     weights, info = checkpoint_paths(path)
     weights.parent.mkdir(parents=True, exist_ok=True)
@@ -46,8 +49,9 @@ def save_checkpoint(model: MILRewardModel, path: str | Path, task: str, **meta) 
 
 
 def load_checkpoint(path: str | Path, architecture: str | None = None,
-                    input_size: int | None = None, task: str | None = None) -> tuple[MILRewardModel, dict]:
-    """Rebuild the model from the metadata and load the weights (eval mode).
+                    input_size: int | None = None,
+                    task: str | None = None) -> tuple[MILRewardModel | MILEnsemble, dict]:
+    """Rebuild the model (or ensemble) from the metadata and load the weights (eval mode).
 
     Raises CheckpointError if a file is missing or malformed, or if the checkpoint's architecture,
     input size or task differs from the one asked for.
@@ -76,10 +80,19 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
         state = torch.load(weights, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling/format failure is a bad checkpoint
         raise CheckpointError(f"cannot read checkpoint weights {weights}: {exc}") from None
-    model = build_model(config)
+    ensemble = record.get("ensemble")
+    try:
+        if ensemble is not None:
+            model = MILEnsemble(config, int(ensemble["members"]))
+        else:
+            model = build_model(config)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"malformed checkpoint metadata {info}: {exc}") from None
     try:
         model.load_state_dict(state, strict=True)
     except RuntimeError as exc:
+        what = f"{ensemble['members']}-member ensemble, " if ensemble is not None else ""
         raise CheckpointError(f"checkpoint weights {weights} do not match their metadata "
-                              f"({config.architecture}, input {config.input_size}): {exc}") from None
+                              f"({what}{config.architecture}, input {config.input_size}): "
+                              f"{str(exc).splitlines()[0]}") from None
     return model.eval(), record

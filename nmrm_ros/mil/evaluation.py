@@ -11,11 +11,15 @@ import torch
 
 from ..datasets.trajectories import TrajectoryDataset
 from .data import BagTensors
+from .ensemble import MILEnsemble
 from .models import MILRewardModel
 
 
 @torch.no_grad()
-def evaluate(model: MILRewardModel, ds: TrajectoryDataset, batch_size: int = 512) -> dict:
+def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512) -> dict:
+    """{"return_mse", "reward_mse", "bags"} of a model (an ensemble: of its mean prediction)."""
+    if isinstance(model, MILEnsemble):
+        return evaluate_ensemble(model, ds, batch_size)
     model.eval()
     bags = BagTensors(ds)
     scale = float(model.return_scale)
@@ -31,6 +35,33 @@ def evaluate(model: MILRewardModel, ds: TrajectoryDataset, batch_size: int = 512
         steps += int(mask.sum())
     n = max(len(bags), 1)
     metrics = {"return_mse": ret_se / n, "reward_mse": rew_se / max(steps, 1), "bags": len(bags)}
+    if scale != 1.0:
+        metrics["return_mse_scaled"] = metrics["return_mse"] / scale ** 2
+        metrics["reward_mse_scaled"] = metrics["reward_mse"] / scale ** 2
+    return metrics
+
+
+@torch.no_grad()
+def evaluate_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512) -> dict:
+    """Metrics of the ensemble-mean prediction (returns and rewards averaged over the members),
+    plus the mean over bags of the members' return std ("return_std")."""
+    ens.eval()
+    bags = BagTensors(ds)
+    ret_se, rew_se, steps, spread = 0.0, 0.0, 0, 0.0
+    for start in range(0, len(bags), batch_size):
+        index = torch.arange(start, min(start + batch_size, len(bags)))
+        x, lengths, returns = bags.batch(index)
+        out = ens(x, lengths)
+        ret_se += float(((out.returns.mean(0) - returns) ** 2).sum())
+        spread += float(out.returns.std(0, unbiased=False).sum())
+        mask = torch.arange(x.shape[1])[None, :] < lengths[:, None]
+        true_rewards = bags.rewards[index, : x.shape[1]]
+        rew_se += float((((out.rewards.mean(0) - true_rewards) ** 2) * mask).sum())
+        steps += int(mask.sum())
+    n = max(len(bags), 1)
+    metrics = {"return_mse": ret_se / n, "reward_mse": rew_se / max(steps, 1),
+               "return_std": spread / n, "bags": len(bags)}
+    scale = float(ens.return_scale)
     if scale != 1.0:
         metrics["return_mse_scaled"] = metrics["return_mse"] / scale ** 2
         metrics["reward_mse_scaled"] = metrics["reward_mse"] / scale ** 2

@@ -1,10 +1,15 @@
-"""Online (one step at a time) inference of a trained MIL reward model, in NumPy.
+"""Online (one step at a time) inference of a trained MIL reward model or ensemble, in NumPy.
 
 The reward-model node calls `step` once per observation, so this path is written for latency:
 the weights are copied out of the torch model once, and each step is a handful of small
 matrix-vector products (no autograd, no torch dispatch). It computes the same rewards and hidden
 states as the batched `model(x, lengths)` forward on the same trajectory (float64 here, float32
 there; tests/test_mil_models.py checks agreement to 1e-5).
+
+A single model is an ensemble of one. For a K-member `MILEnsemble`, every step runs all members
+(weights stacked on a leading member axis): the reward served is the members' mean, `reward_std`
+their spread, `return_std` the spread of their returns so far, and the hidden state is the
+serving member's (the best on validation), so that an agent sees one consistent state.
 """
 
 from __future__ import annotations
@@ -13,100 +18,126 @@ import numpy as np
 import torch
 from torch import nn
 
+from .ensemble import MILEnsemble
 from .models import MILRewardModel
 
 
-def _linear_layers(seq: nn.Sequential) -> list:
-    return [(m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy())
-            for m in seq if isinstance(m, nn.Linear)]
+def _stacked_linear(ens: MILEnsemble, prefix: str, names: list) -> list:
+    """[(W (K, out, in), b (K, out, 1))] float64 of each Linear layer of `prefix`."""
+    out = []
+    for name in names:
+        w = ens.params[f"{prefix}__{name}__weight"].detach().double().numpy().copy()
+        b = ens.params[f"{prefix}__{name}__bias"].detach().double().numpy().copy()
+        out.append((w, b[..., None]))
+    return out
 
 
 class OnlineRewardModel:
     """`reset()` at each episode start, then `step(s_t) -> (r'_t, h'_{t+1})`.
 
-    `hidden` is the current h'_t (k,) (k = 0 for the Instance Space NN).
+    `hidden` is the current h'_t (k,) of the serving member (k = 0 for the Instance Space NN);
+    after a step, `rewards` (K,) are the members' r'_t, `reward_std` their standard deviation and
+    `return_std` the standard deviation of the members' returns so far (0 for one model).
     """
 
-    def __init__(self, model: MILRewardModel) -> None:
-        model = model.eval()
-        cfg = model.config
+    def __init__(self, model: MILRewardModel | MILEnsemble) -> None:
+        ens = model if isinstance(model, MILEnsemble) else MILEnsemble.from_members([model])
+        ens = ens.eval()
+        cfg = ens.config
+        self.members = ens.members
+        self.serving = int(ens.serving_member)
         self.architecture = cfg.architecture
         self.input_size = cfg.input_size
-        self.shift = model.input_shift.double().numpy().copy()
-        self.scale = model.input_scale.double().numpy().copy()
-        self.return_scale = float(model.return_scale)
+        self.shift = ens.input_shift.double().numpy().copy()  # (K, d)
+        self.scale = ens.input_scale.double().numpy().copy()
+        self.return_scale = float(ens.return_scale)
         self.leaky = cfg.output_activation == "leaky_relu"
-        self.fe = _linear_layers(model.feature_extractor)
-        self.head = _linear_layers(model.head)
-        self.uses_lstm = model.uses_lstm
-        self.k = model.hidden_size
+        self.fe = _stacked_linear(ens, "feature_extractor", ens._fe)
+        self.head = _stacked_linear(ens, "head", ens._head)
+        self.uses_lstm = ens.uses_lstm
+        self.k = ens.hidden_size
         if self.uses_lstm:
-            lstm = model.lstm
-            self.w_ih = lstm.weight_ih_l0.detach().double().numpy().copy()
-            self.w_hh = lstm.weight_hh_l0.detach().double().numpy().copy()
-            self.bias = (lstm.bias_ih_l0 + lstm.bias_hh_l0).detach().double().numpy().copy()
-            self.h0 = model.h0.detach().double().numpy().copy()
-            self.c0 = model.c0.detach().double().numpy().copy()
+            p = {n: v.detach().double().numpy().copy() for n, v in ens.params.items()}
+            self.w_ih = p["lstm__weight_ih_l0"]  # (K, 4k, F)
+            self.w_hh = p["lstm__weight_hh_l0"]  # (K, 4k, k)
+            self.bias = p["lstm__bias_ih_l0"] + p["lstm__bias_hh_l0"]  # (K, 4k)
+            self.h0, self.c0 = p["h0"], p["c0"]  # (K, k)
         self.reset()
 
     def reset(self) -> None:
-        """Start a new trajectory: h' = h'_0, c' = c'_0, g_{-1} = 0."""
+        """Start a new trajectory: h' = h'_0, c' = c'_0, g_{-1} = 0, returns so far 0."""
+        K = self.members
         if self.uses_lstm:
-            self.hidden = self.h0.copy()
-            self.cell = self.c0.copy()
+            self.states_h = self.h0.copy()
+            self.states_c = self.c0.copy()
+            self.hidden = self.states_h[self.serving].copy()
         else:
             self.hidden = np.zeros(0)
-        self.previous_partial = 0.0
+        self.previous_partial = np.zeros(K)
+        self.partial_returns = np.zeros(K)
+        self.rewards = np.zeros(K)
+        self.reward_std = 0.0
+        self.return_std = 0.0
         self.t = 0
 
-    def _mlp(self, layers: list, z: np.ndarray) -> np.ndarray:
-        last = len(layers) - 1
-        for i, (w, b) in enumerate(layers):
-            z = w @ z + b
-            if i < last:
-                z = np.maximum(z, 0.0)
-        return z
+    @staticmethod
+    def _apply(w: np.ndarray, b: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Each member's layer on its own input: (K, out, in) x (K, in) -> (K, out)."""
+        return (np.matmul(w, z[..., None]) + b)[..., 0]
 
     def _fe(self, x: np.ndarray) -> np.ndarray:
-        z = (x - self.shift) / self.scale
+        z = (x[None, :] - self.shift) / self.scale
         for w, b in self.fe:
-            z = np.maximum(w @ z + b, 0.0)
+            z = np.maximum(self._apply(w, b, z), 0.0)
         return z
 
-    def _out(self, z: np.ndarray) -> float:
-        y = float(self._mlp(self.head, z)[0])
-        if self.leaky and y < 0:
-            y *= 1e-6
+    def _out(self, z: np.ndarray) -> np.ndarray:
+        last = len(self.head) - 1
+        for i, (w, b) in enumerate(self.head):
+            z = self._apply(w, b, z)
+            if i < last:
+                z = np.maximum(z, 0.0)
+        y = z[:, 0]
+        if self.leaky:
+            y = np.where(y < 0, y * 1e-6, y)
         return y * self.return_scale
 
     def step(self, state: np.ndarray) -> tuple[float, np.ndarray]:
-        """Consume instance s_t (d,); return (r'_t, h'_{t+1} (k,))."""
+        """Consume instance s_t (d,); return (r'_t (members' mean), h'_{t+1} (k,) of the serving
+        member)."""
         x = np.asarray(state, dtype=np.float64).reshape(-1)
         if x.shape[0] != self.input_size:
             raise ValueError(f"expected a state of size {self.input_size}, got {x.shape[0]}")
         if not np.all(np.isfinite(x)):
             raise ValueError("state contains NaN or inf")
-        f = self._fe(x)
+        f = self._fe(x)  # (K, F)
         self.t += 1
         if not self.uses_lstm:
-            return self._out(f), self.hidden
-        gates = self.w_ih @ f + self.w_hh @ self.hidden + self.bias
-        k = self.k
-        i = 1.0 / (1.0 + np.exp(-gates[:k]))
-        fg = 1.0 / (1.0 + np.exp(-gates[k:2 * k]))
-        g = np.tanh(gates[2 * k:3 * k])
-        o = 1.0 / (1.0 + np.exp(-gates[3 * k:]))
-        self.cell = fg * self.cell + i * g
-        self.hidden = o * np.tanh(self.cell)
-        if self.architecture == "embedding_lstm":
-            partial = self._out(self.hidden)
-            reward = partial - self.previous_partial
-            self.previous_partial = partial
-        elif self.architecture == "csc_lstm":
-            reward = self._out(np.concatenate([f, self.hidden]))
+            rewards = self._out(f)
         else:
-            reward = self._out(self.hidden)
-        return reward, self.hidden.copy()
+            gates = (np.matmul(self.w_ih, f[..., None])[..., 0]
+                     + np.matmul(self.w_hh, self.states_h[..., None])[..., 0] + self.bias)
+            k = self.k
+            i = 1.0 / (1.0 + np.exp(-gates[:, :k]))
+            fg = 1.0 / (1.0 + np.exp(-gates[:, k:2 * k]))
+            g = np.tanh(gates[:, 2 * k:3 * k])
+            o = 1.0 / (1.0 + np.exp(-gates[:, 3 * k:]))
+            self.states_c = fg * self.states_c + i * g
+            self.states_h = o * np.tanh(self.states_c)
+            self.hidden = self.states_h[self.serving].copy()
+            if self.architecture == "embedding_lstm":
+                partial = self._out(self.states_h)
+                rewards = partial - self.previous_partial
+                self.previous_partial = partial
+            elif self.architecture == "csc_lstm":
+                rewards = self._out(np.concatenate([f, self.states_h], axis=1))
+            else:
+                rewards = self._out(self.states_h)
+        self.rewards = rewards
+        self.partial_returns = self.partial_returns + rewards
+        self.reward_std = float(rewards.std())
+        self.return_std = float(self.partial_returns.std())
+        return float(rewards.mean()), self.hidden.copy()
 
 
 def batched_reference(model: MILRewardModel, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

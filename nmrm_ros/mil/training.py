@@ -1,13 +1,22 @@
 """Mini-batch MIL training: Adam on the MSE of bag returns, early stopping on validation return
-MSE, best weights kept.
+MSE, best weights kept; any number of models at once.
+
+`train_ensemble` trains the K members of a `MILEnsemble` in one pass: every optimiser step takes
+one mini-batch per member (from that member's own training split and its own shuffle), and the
+loss is the sum of the members' losses, so with Adam (elementwise) each member follows its own
+training exactly as if alone. Each member keeps its own best epoch and early-stopping clock; the
+run ends when every member has run out of patience, or at `max_epochs`. `train_model` is the same
+trainer for one model.
 
 Unlike the paper (one bag per step), bags are trained in padded mini-batches; the loss is computed
 on returns divided by `return_scale` (Lunar Lander: 100), as the paper scaled its targets.
+Learning-rate schedule (global): linear warm-up over `warmup_epochs`, then constant or a cosine
+decay to `lr * min_lr_ratio` at `max_epochs`. `grad_clip` > 0 clips each member's gradient norm.
 """
 
 from __future__ import annotations
 
-import copy
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,8 +25,9 @@ import numpy as np
 import torch
 import yaml
 
-from ..datasets.trajectories import TrajectoryDataset
+from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
+from .ensemble import MILEnsemble
 from .models import MILRewardModel
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
@@ -37,6 +47,24 @@ class TrainConfig:
     normalisation: str = "standard"
     seed: int = 0
     threads: int = 1
+    schedule: str = "constant"  # constant | cosine
+    warmup_epochs: int = 0
+    min_lr_ratio: float = 0.0
+    grad_clip: float = 0.0  # per-member gradient norm limit; 0 = off
+    lstm_forget_bias: float = 0.0  # initial forget-gate bias (b_ih + b_hh) of every LSTM
+
+    def lr_at(self, epoch: float) -> float:
+        """Learning rate at (fractional, 0-based) epoch."""
+        if self.warmup_epochs > 0 and epoch < self.warmup_epochs:
+            return self.lr * (epoch + 1e-3) / self.warmup_epochs
+        if self.schedule == "cosine":
+            span = max(self.max_epochs - self.warmup_epochs, 1)
+            progress = min(max(epoch - self.warmup_epochs, 0.0) / span, 1.0)
+            low = self.lr * self.min_lr_ratio
+            return low + 0.5 * (self.lr - low) * (1.0 + math.cos(math.pi * progress))
+        if self.schedule != "constant":
+            raise ValueError(f"unknown schedule {self.schedule!r}: use 'constant' or 'cosine'")
+        return self.lr
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -44,11 +72,34 @@ class TrainConfig:
 
 @dataclass
 class TrainResult:
+    """One model's training. `still_improving`: it reached max_epochs with its best epoch within
+    the last `patience` epochs, i.e. it stopped at the limit, not on a plateau."""
+
     best_epoch: int
     best_val_return_mse: float
     epochs_run: int
     seconds: float
-    history: list = field(default_factory=list)  # per epoch: {"epoch", "train_loss", "val_return_mse"}
+    still_improving: bool = False
+    history: list = field(default_factory=list)  # per epoch: {"epoch", "train_loss", "val_return_mse", "lr"}
+
+
+@dataclass
+class EnsembleTrainResult:
+    """Per-member lists (length K) and the run's totals."""
+
+    best_epochs: list
+    best_val_return_mse: list
+    still_improving: list
+    epochs_run: int
+    seconds: float
+    history: list = field(default_factory=list)  # per epoch: lists of K train losses / val MSEs
+
+    def member(self, m: int) -> TrainResult:
+        return TrainResult(self.best_epochs[m], self.best_val_return_mse[m], self.epochs_run,
+                           self.seconds, self.still_improving[m],
+                           [{"epoch": h["epoch"], "train_loss": h["train_loss"][m],
+                             "val_return_mse": h["val_return_mse"][m], "lr": h["lr"]}
+                            for h in self.history])
 
 
 def load_train_config(task: str, path: str | Path | None = None, **overrides) -> TrainConfig:
@@ -64,7 +115,23 @@ def load_train_config(task: str, path: str | Path | None = None, **overrides) ->
     unknown = set(values) - set(TrainConfig.__dataclass_fields__)
     if unknown:
         raise ValueError(f"unknown training settings {sorted(unknown)}")
-    return TrainConfig(**values)
+    return TrainConfig(**{k: _coerce(k, v) for k, v in values.items()})
+
+
+def _coerce(name: str, value):
+    """A setting converted to its field's type ("1e-3" -> 0.001; 64.0 -> 64), or a clear error."""
+    kind = TrainConfig.__dataclass_fields__[name].type
+    try:
+        if kind == "float":
+            return float(value)
+        if kind == "int":
+            if isinstance(value, bool) or float(value) != int(float(value)):
+                raise ValueError
+            return int(float(value))
+    except (TypeError, ValueError):
+        raise ValueError(f"training setting {name} must be a{'n' if kind == 'int' else ''} {kind}, "
+                         f"got {value!r}") from None
+    return value
 
 
 def _config_path() -> Path:
@@ -83,62 +150,144 @@ def fit_normalisation(model: MILRewardModel, train: TrajectoryDataset, cfg: Trai
 
 
 @torch.no_grad()
-def return_mse(model: MILRewardModel, bags: BagTensors, batch_size: int = 512,
-               scaled: bool = False) -> float:
-    """Mean squared error of the predicted returns (in label units, or / return_scale)."""
+def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size: int = 512,
+               scaled: bool = False, index: torch.Tensor | None = None) -> np.ndarray | float:
+    """Mean squared error of the predicted returns (label units, or / return_scale) over the bags
+    (or the bags at `index`: (n,), or (K, n) one row per ensemble member). A single model gives a
+    float, an ensemble an array (K,)."""
     model.eval()
-    total, n = 0.0, len(bags)
+    ensemble = isinstance(model, MILEnsemble)
+    if index is None:
+        index = torch.arange(len(bags))
+    if ensemble and index.dim() == 1:
+        index = index.unsqueeze(0).expand(model.members, -1)
+    n = index.shape[-1]
+    total = torch.zeros(model.members if ensemble else ())
     for start in range(0, n, batch_size):
-        index = torch.arange(start, min(start + batch_size, n))
-        x, lengths, returns = bags.batch(index)
+        x, lengths, returns = bags.batch(index[..., start:start + batch_size])
         err = model(x, lengths).returns - returns
         if scaled:
             err = err / model.return_scale
-        total += float((err ** 2).sum())
-    return total / max(n, 1)
+        total += (err.double() ** 2).sum(-1)
+    mse = total.numpy() / max(n, 1)
+    return mse if ensemble else float(mse)
 
 
 def train_model(model: MILRewardModel, train: TrajectoryDataset, val: TrajectoryDataset,
                 cfg: TrainConfig, progress: bool = True) -> TrainResult:
-    """Train in place (normalisation from `train`); on return the model holds the best weights."""
+    """Train one model in place (normalisation from `train`); on return it holds the best weights."""
+    full = concatenate([train, val])
+    n_train = len(train)
+    splits = [(np.arange(n_train), np.arange(n_train, len(full)))]
+    ens = MILEnsemble.from_members([model])
+    result = train_ensemble(ens, full, splits, cfg, progress=progress)
+    with torch.no_grad():
+        trained = ens.member(0)
+        model.load_state_dict(trained.state_dict())
+    model.eval()
+    return result.member(0)
+
+
+def init_lstm_forget_bias(ens: MILEnsemble, value: float) -> None:
+    """Set every member's forget-gate bias (b_ih + b_hh) to `value` (b_hh's part to 0)."""
+    if not ens.uses_lstm:
+        return
+    k = ens.hidden_size
+    with torch.no_grad():
+        ens.params["lstm__bias_ih_l0"][:, k:2 * k] = value
+        ens.params["lstm__bias_hh_l0"][:, k:2 * k] = 0.0
+
+
+def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
+    """Scale each member's gradient to norm <= max_norm; returns the norms before clipping (K,)."""
+    grads = [p.grad for p in ens.parameters() if p.grad is not None]
+    sq = sum((g.reshape(g.shape[0], -1) ** 2).sum(1) for g in grads)
+    norms = sq.sqrt()
+    factor = (max_norm / (norms + 1e-6)).clamp(max=1.0)
+    for g in grads:
+        g.mul_(factor.view(-1, *([1] * (g.dim() - 1))))
+    return norms
+
+
+def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
+                   seeds: list | None = None, progress: bool = True) -> EnsembleTrainResult:
+    """Train every member of `ens` in place on `ds`.
+
+    splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
+    sizes); seeds: K seeds of the members' shuffles and dropout (default cfg.seed + m). Each
+    member's normalisation is fitted on its own training split. On return each member holds its
+    best-validation weights.
+    """
+    K = ens.members
+    if len(splits) != K:
+        raise ValueError(f"{K} members need {K} splits, got {len(splits)}")
+    sizes = {len(tr) for tr, _ in splits}
+    if len(sizes) != 1:
+        raise ValueError(f"members' training splits differ in size: {sorted(sizes)}")
+    if len({len(va) for _, va in splits}) != 1:
+        raise ValueError("members' validation splits differ in size")
+    seeds = list(seeds) if seeds is not None else [cfg.seed + m for m in range(K)]
     torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    fit_normalisation(model, train, cfg)
-    train_bags, val_bags = BagTensors(train), BagTensors(val)
-    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    generator = torch.Generator().manual_seed(cfg.seed)
+    torch.manual_seed(seeds[0])
+    for m, (tr, _) in enumerate(splits):
+        shift, scale = normalisation(ds.subset(np.asarray(tr)), cfg.normalisation)
+        with torch.no_grad():
+            ens.input_shift[m] = torch.as_tensor(shift, dtype=torch.float32)
+            ens.input_scale[m] = torch.as_tensor(scale, dtype=torch.float32)
+    ens.return_scale.fill_(float(cfg.return_scale))
+    if cfg.lstm_forget_bias:
+        init_lstm_forget_bias(ens, cfg.lstm_forget_bias)
+
+    bags = BagTensors(ds)
+    train_idx = torch.as_tensor(np.stack([np.asarray(tr) for tr, _ in splits]), dtype=torch.int64)
+    val_idx = torch.as_tensor(np.stack([np.asarray(va) for _, va in splits]), dtype=torch.int64)
+    n_train = train_idx.shape[1]
+    optimiser = torch.optim.Adam(ens.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
     scale = float(cfg.return_scale)
-    best = (float("inf"), -1, copy.deepcopy(model.state_dict()))
+    steps_per_epoch = math.ceil(n_train / cfg.batch_size)
+    best_mse = np.full(K, np.inf)
+    best_epoch = np.zeros(K, dtype=int)
+    best_state = [ens.member_state(m) for m in range(K)]
     history = []
     start = time.perf_counter()
     bar = _progress(cfg.max_epochs, progress)
     epoch = 0
     for epoch in range(1, cfg.max_epochs + 1):
-        model.train()
-        order = torch.randperm(len(train_bags), generator=generator)
-        losses = []
-        for i in range(0, len(order), cfg.batch_size):
-            x, lengths, returns = train_bags.batch(order[i:i + cfg.batch_size])
-            pred = model(x, lengths).returns
-            loss = torch.mean(((pred - returns) / scale) ** 2)
+        ens.train()
+        order = torch.stack([train_idx[m, torch.randperm(n_train, generator=generators[m])]
+                             for m in range(K)])
+        losses = torch.zeros(K)
+        for step, i in enumerate(range(0, n_train, cfg.batch_size)):
+            for group in optimiser.param_groups:
+                group["lr"] = cfg.lr_at(epoch - 1 + step / steps_per_epoch)
+            x, lengths, returns = bags.batch(order[:, i:i + cfg.batch_size])
+            member_loss = torch.mean(((ens(x, lengths).returns - returns) / scale) ** 2, dim=1)
             optimiser.zero_grad()
-            loss.backward()
+            member_loss.sum().backward()
+            if cfg.grad_clip > 0:
+                clip_member_grad_norms(ens, cfg.grad_clip)
             optimiser.step()
-            losses.append(float(loss.detach()))
-        val_mse = return_mse(model, val_bags)
-        history.append({"epoch": epoch, "train_loss": float(np.mean(losses)), "val_return_mse": val_mse})
-        if val_mse < best[0]:
-            best = (val_mse, epoch, copy.deepcopy(model.state_dict()))
+            losses += member_loss.detach()
+        val_mse = return_mse(ens, bags, index=val_idx)
+        history.append({"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist(),
+                        "val_return_mse": val_mse.tolist(), "lr": optimiser.param_groups[0]["lr"]})
+        for m in np.flatnonzero(val_mse < best_mse):
+            best_mse[m], best_epoch[m] = val_mse[m], epoch
+            best_state[m] = ens.member_state(int(m))
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(val_mse=f"{val_mse:.4f}", best=f"{best[0]:.4f}@{best[1]}")
-        if epoch - best[1] >= cfg.patience:
+            bar.set_postfix(val_mse=f"{np.median(val_mse):.4f}", worst_best=f"{best_mse.max():.4f}")
+        if np.all(epoch - best_epoch >= cfg.patience):
             break
     if bar is not None:
         bar.close()
-    model.load_state_dict(best[2])
-    model.eval()
-    return TrainResult(best[1], best[0], epoch, time.perf_counter() - start, history)
+    for m in range(K):
+        ens.load_member_state(m, best_state[m])
+    ens.eval()
+    still_improving = [bool(epoch - b < cfg.patience) for b in best_epoch]
+    return EnsembleTrainResult(best_epoch.tolist(), best_mse.tolist(), still_improving, epoch,
+                               time.perf_counter() - start, history)
 
 
 def _progress(total: int, enabled: bool):

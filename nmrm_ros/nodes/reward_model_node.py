@@ -7,7 +7,8 @@ r'_t. The hidden state is reset to h'_0 at step 0 of each episode. The episode's
 terminal state an RL agent bootstraps from; its reward belongs to no transition.
 
 mode "model": the CSC / Instance / Embedding LSTM (or Instance NN) of `checkpoint`, stepped with
-the NumPy online stepper. mode "oracle": the task's true hidden state and reward (the paper's
+the NumPy online stepper. An ensemble checkpoint serves the members' mean reward, their spread in
+`reward_std` / `return_std`, and the hidden state of its serving member (the best on validation). mode "oracle": the task's true hidden state and reward (the paper's
 oracle baselines), through the same graph.
 
 Ordering rule (`nmrm_ros.ros.episodes`): a re-published observation (same episode, step and state)
@@ -105,7 +106,8 @@ class RewardModelNode(Node):
         out = RewardStep(episode=msg.episode, step=msg.step, state=list(msg.state),
                          hidden=to_float_list(hidden),
                          augmented_state=to_float_list(np.concatenate([state, hidden])),
-                         reward=float(reward), source=self.source,
+                         reward=float(reward), reward_std=float(getattr(self.stepper, "reward_std", 0.0)),
+                         return_std=float(getattr(self.stepper, "return_std", 0.0)), source=self.source,
                          terminated=msg.terminated, truncated=msg.truncated)
         out.header = msg.header
         self.last = out

@@ -1,0 +1,189 @@
+"""K reward models of one architecture computed as one batched model (an ensemble).
+
+    ens = MILEnsemble.from_members([build_model(cfg) for _ in range(K)])
+    out = ens(x, lengths)     x: (B, T, d) shared by all members, or (K, B, T, d) a batch each;
+                              lengths: (B,) or (K, B)
+    out.returns (K, B)  out.rewards (K, B, T)  out.hidden (K, B, T, k)
+
+Every member is exactly a `MILRewardModel` (`ens.member(m)` rebuilds it; tests check that the
+ensemble forward equals each member's own forward). Each parameter of the single model becomes one
+stacked tensor with a leading member axis: fully connected layers run as batched matrix products
+(`torch.baddbmm`), and the K LSTMs (hidden size k each) run as one `torch.lstm` of hidden size K*k
+whose weights are block-diagonal (member m's gates only see member m's features and state), so
+the recurrence stays in torch's fused kernel. Gradients reach only the diagonal blocks, so training
+the sum of the members' losses with Adam is K independent trainings done in one pass.
+
+Normalisation buffers are per member (each member may train on its own split). `serving_member`
+is the member whose hidden state the online model publishes (the best on validation).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .models import MILOutput, MILRewardModel, ModelConfig, build_model, dropout_mask
+
+
+def _key(name: str) -> str:
+    return name.replace(".", "__")
+
+
+class MILEnsemble(nn.Module):
+    """K members of one `ModelConfig`, parameters stacked on a leading member axis."""
+
+    def __init__(self, config: ModelConfig, members: int) -> None:
+        super().__init__()
+        if members < 1:
+            raise ValueError(f"an ensemble needs at least one member, got {members}")
+        self.config = config
+        self.members = int(members)
+        template = build_model(config)
+        self.uses_lstm = template.uses_lstm
+        self.hidden_size = template.hidden_size
+        self.params = nn.ParameterDict({
+            _key(name): nn.Parameter(p.detach().unsqueeze(0).repeat(members, *([1] * p.dim())))
+            for name, p in template.named_parameters()})
+        self.register_buffer("input_shift", torch.zeros(members, config.input_size))
+        self.register_buffer("input_scale", torch.ones(members, config.input_size))
+        self.register_buffer("return_scale", torch.ones(()))
+        self.register_buffer("serving_member", torch.zeros((), dtype=torch.int64))
+        # names of the Linear layers, in order, with where a ReLU (+ dropout) follows
+        self._fe = [n for n, m in template.feature_extractor.named_children() if isinstance(m, nn.Linear)]
+        self._head = [n for n, m in template.head.named_children() if isinstance(m, nn.Linear)]
+        self.dropout = float(config.dropout)
+        self.leaky = config.output_activation == "leaky_relu"
+
+    # ----------------------------------------------------------------- members in and out
+    @classmethod
+    def from_members(cls, models: list) -> "MILEnsemble":
+        """Stack trained or freshly initialised single models (same config) into an ensemble."""
+        config = models[0].config
+        if any(m.config != config for m in models):
+            raise ValueError("ensemble members must share one model configuration")
+        ens = cls(config, len(models))
+        with torch.no_grad():
+            for i, model in enumerate(models):
+                ens.set_member(i, model)
+        return ens
+
+    @torch.no_grad()
+    def set_member(self, index: int, model: MILRewardModel) -> None:
+        """Copy a single model's weights and normalisation into member `index`."""
+        for name, p in model.named_parameters():
+            self.params[_key(name)][index].copy_(p)
+        self.input_shift[index].copy_(model.input_shift)
+        self.input_scale[index].copy_(model.input_scale)
+        self.return_scale.copy_(model.return_scale)
+
+    @torch.no_grad()
+    def member(self, index: int) -> MILRewardModel:
+        """Member `index` as a stand-alone `MILRewardModel` (eval mode)."""
+        model = build_model(self.config)
+        for name, p in model.named_parameters():
+            p.copy_(self.params[_key(name)][index])
+        model.set_normalisation(self.input_shift[index], self.input_scale[index],
+                                float(self.return_scale))
+        return model.eval()
+
+    def member_state(self, index: int) -> dict:
+        """A detached copy of member `index`'s parameters and normalisation (for best-epoch keeping)."""
+        state = {k: v[index].detach().clone() for k, v in self.params.items()}
+        state["input_shift"] = self.input_shift[index].clone()
+        state["input_scale"] = self.input_scale[index].clone()
+        return state
+
+    @torch.no_grad()
+    def load_member_state(self, index: int, state: dict) -> None:
+        for k, v in self.params.items():
+            v[index].copy_(state[k])
+        self.input_shift[index].copy_(state["input_shift"])
+        self.input_scale[index].copy_(state["input_scale"])
+
+    # ----------------------------------------------------------------- forward
+    def _linear(self, z: torch.Tensor, prefix: str, name: str) -> torch.Tensor:
+        w = self.params[_key(f"{prefix}.{name}.weight")]  # (K, out, in)
+        b = self.params[_key(f"{prefix}.{name}.bias")]  # (K, out)
+        return torch.baddbmm(b.unsqueeze(1), z, w.transpose(1, 2))
+
+    def _activation(self, z: torch.Tensor) -> torch.Tensor:
+        z = torch.relu(z)
+        if self.training and self.dropout > 0:
+            z = z * dropout_mask(z, self.dropout)
+        return z
+
+    def _features(self, x: torch.Tensor) -> torch.Tensor:
+        """(K, N, d) raw instances -> (K, N, F) features."""
+        z = (x - self.input_shift[:, None, :]) / self.input_scale[:, None, :]
+        for name in self._fe:
+            z = self._activation(self._linear(z, "feature_extractor", name))
+        return z
+
+    def _head_out(self, z: torch.Tensor) -> torch.Tensor:
+        """(K, N, in) -> (K, N) in label units."""
+        last = len(self._head) - 1
+        for i, name in enumerate(self._head):
+            z = self._linear(z, "head", name)
+            if i < last:
+                z = self._activation(z)
+        z = z.squeeze(-1)
+        if self.leaky:
+            z = torch.nn.functional.leaky_relu(z, 1e-6)
+        return z * self.return_scale
+
+    def _lstm(self, f: torch.Tensor) -> torch.Tensor:
+        """(K, B, T, F) features -> (K, B, T, k) hidden states h'_{t+1}, one LSTM per member."""
+        K, B, T, F = f.shape
+        k = self.hidden_size
+        eye = torch.eye(K, dtype=f.dtype)
+        p = self.params
+        # torch's gate-major layout [i | f | g | o], each gate block ordered by member then unit
+        w_ih = torch.einsum("mghf,ml->gmhlf", p["lstm__weight_ih_l0"].view(K, 4, k, F), eye)
+        w_hh = torch.einsum("mghj,ml->gmhlj", p["lstm__weight_hh_l0"].view(K, 4, k, k), eye)
+        b_ih = p["lstm__bias_ih_l0"].view(K, 4, k).transpose(0, 1).reshape(-1)
+        b_hh = p["lstm__bias_hh_l0"].view(K, 4, k).transpose(0, 1).reshape(-1)
+        h0 = p["h0"].reshape(1, 1, K * k).expand(1, B, K * k).contiguous()
+        c0 = p["c0"].reshape(1, 1, K * k).expand(1, B, K * k).contiguous()
+        inp = f.permute(1, 2, 0, 3).reshape(B, T, K * F)
+        out, _, _ = torch.lstm(inp, (h0, c0),
+                               [w_ih.reshape(4 * K * k, K * F), w_hh.reshape(4 * K * k, K * k), b_ih, b_hh],
+                               True, 1, 0.0, self.training, False, True)
+        return out.view(B, T, K, k).permute(2, 0, 1, 3)
+
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
+        K = self.members
+        if x.dim() == 3:
+            x = x.unsqueeze(0).expand(K, *x.shape)
+        if lengths.dim() == 1:
+            lengths = lengths.unsqueeze(0).expand(K, -1)
+        _, B, T, d = x.shape
+        mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
+        f = self._features(x.reshape(K, B * T, d))
+        arch = self.config.architecture
+        if arch == "instance_nn":
+            rewards = self._head_out(f).view(K, B, T) * mask
+            return MILOutput(rewards.sum(-1), rewards, x.new_zeros(K, B, T, 0))
+        hidden = self._lstm(f.view(K, B, T, -1))
+        flat_hidden = hidden.reshape(K, B * T, -1)
+        if arch == "embedding_lstm":
+            partial = self._head_out(flat_hidden).view(K, B, T)
+            previous = torch.cat([partial.new_zeros(K, B, 1), partial[..., :-1]], dim=-1)
+            rewards = (partial - previous) * mask
+            last = (lengths - 1).clamp(min=0)
+            returns = partial.gather(-1, last[..., None]).squeeze(-1) * (lengths > 0).to(x.dtype)
+            return MILOutput(returns, rewards, hidden * mask[..., None])
+        if arch == "csc_lstm":
+            rewards = self._head_out(torch.cat([f, flat_hidden], dim=-1)).view(K, B, T) * mask
+        else:  # instance_lstm
+            rewards = self._head_out(flat_hidden).view(K, B, T) * mask
+        return MILOutput(rewards.sum(-1), rewards, hidden * mask[..., None])
+
+
+def init_ensemble(config: ModelConfig, seeds: list) -> MILEnsemble:
+    """An ensemble whose member m is initialised exactly as `build_model(config)` after
+    `torch.manual_seed(seeds[m])` (so a 1-member ensemble starts where a single run starts)."""
+    models = []
+    for seed in seeds:
+        torch.manual_seed(int(seed))
+        models.append(build_model(config))
+    return MILEnsemble.from_members(models)

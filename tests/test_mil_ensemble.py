@@ -1,0 +1,144 @@
+"""Ensembles: the batched forward equals each member's own, one-pass training equals training each
+member alone, checkpoints round-trip, the online ensemble step equals the batched forward, and the
+training report says when a run stopped while still improving."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from nmrm_ros.datasets import make_toy_dataset
+from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, build_model,
+                          load_checkpoint, load_train_config, model_config, train_model)
+from nmrm_ros.mil.data import split_indices
+from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
+from nmrm_ros.mil.pipeline import member_splits, train_ensemble_and_evaluate
+from nmrm_ros.mil.training import train_ensemble
+
+
+def _members(arch, task="key", d=2, k=3):
+    models = []
+    for m in range(k):
+        torch.manual_seed(10 + m)
+        model = build_model(model_config(arch, task, d, dropout=0.1))
+        model.set_normalisation(torch.rand(d), torch.rand(d) + 0.5, 1.0)
+        if model.uses_lstm:
+            with torch.no_grad():
+                model.h0.uniform_(-0.5, 0.5)
+                model.c0.uniform_(-0.5, 0.5)
+        models.append(model.eval())
+    return models
+
+
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+@pytest.mark.parametrize("task,d", [("key", 2), ("lunar_lander", 8)])
+def test_ensemble_forward_equals_each_members_forward(arch, task, d):
+    models = _members(arch, task, d)
+    ens = MILEnsemble.from_members(models).eval()
+    x = torch.randn(3, 5, 17, d)
+    lengths = torch.randint(1, 18, (3, 5))
+    out = ens(x, lengths)  # one batch per member
+    shared = ens(x[0], lengths[0])  # one batch for all
+    for m, model in enumerate(models):
+        own = model(x[m], lengths[m])
+        torch.testing.assert_close(out.returns[m], own.returns, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(out.rewards[m], own.rewards, atol=1e-6, rtol=1e-5)
+        torch.testing.assert_close(out.hidden[m], own.hidden, atol=1e-6, rtol=1e-5)
+        torch.testing.assert_close(shared.rewards[m], model(x[0], lengths[0]).rewards, atol=1e-6, rtol=1e-5)
+        # member() rebuilds exactly the model that went in
+        for (name, a), b in zip(model.state_dict().items(), ens.member(m).state_dict().values()):
+            assert torch.equal(a, b), name
+
+
+def test_ensemble_training_is_each_member_trained_alone():
+    """Two members trained in one pass (dropout 0) end where each one's own run ends."""
+    ds = make_toy_dataset("push_switch", 300, seed=0)
+    cfg = load_train_config("push_switch", max_epochs=3, dropout=0.0)
+    config = model_config("csc_lstm", "push_switch", ds.state_size)
+    splits = [split_indices(len(ds), s)[:2] for s in (0, 1)]
+    ens = init_ensemble(config, [5, 6])
+    train_ensemble(ens, ds, splits, cfg, seeds=[5, 6], progress=False)
+    for m, seed in enumerate((5, 6)):
+        torch.manual_seed(seed)
+        alone = build_model(config)
+        tr, va = splits[m]
+        alone_cfg = load_train_config("push_switch", max_epochs=3, dropout=0.0, seed=seed)
+        train_model(alone, ds.subset(tr), ds.subset(va), alone_cfg, progress=False)
+        for (name, a), b in zip(alone.state_dict().items(), ens.member(m).state_dict().values()):
+            torch.testing.assert_close(a, b, atol=2e-5, rtol=1e-4, msg=name)
+
+
+def test_ensemble_checkpoint_and_online_step(tmp_path):
+    ds = make_toy_dataset("push_switch", 200, seed=1)
+    cfg = load_train_config("push_switch", max_epochs=2)
+    run = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap",
+                                      out=tmp_path / "ens", progress=False)
+    meta = json.loads((tmp_path / "ens.json").read_text())
+    assert meta["ensemble"]["members"] == 4 and meta["ensemble"]["seeds"] == [0, 1, 2, 3]
+    serving = meta["ensemble"]["serving_member"]
+    assert serving == int(np.argmin([v["return_mse"] for v in run.member_val]))
+    loaded, _ = load_checkpoint(tmp_path / "ens", task="push_switch")
+    assert isinstance(loaded, MILEnsemble) and loaded.members == 4 and int(loaded.serving_member) == serving
+    for a, b in zip(run.ensemble.state_dict().values(), loaded.state_dict().values()):
+        assert torch.equal(a, b)
+    # online: the members' mean reward, their spread, and the serving member's hidden state
+    states = ds.states[0, : ds.lengths[0]]
+    with torch.no_grad():
+        out = loaded(torch.as_tensor(states)[None], torch.tensor([len(states)]))
+    online = OnlineRewardModel(loaded)
+    online.reset()
+    for t in range(len(states)):
+        r, h = online.step(states[t])
+        members = out.rewards[:, 0, t].double().numpy()
+        assert r == pytest.approx(members.mean(), abs=1e-5)
+        assert online.reward_std == pytest.approx(members.std(), abs=1e-5)
+        np.testing.assert_allclose(h, out.hidden[serving, 0, t].numpy(), atol=1e-6)
+    returns = out.returns[:, 0].double().numpy()
+    assert online.return_std == pytest.approx(returns.std(), abs=1e-4)
+
+
+def test_ensemble_checkpoint_with_wrong_member_count_is_refused(tmp_path):
+    ds = make_toy_dataset("push_switch", 100, seed=1)
+    train_ensemble_and_evaluate(ds, "instance_lstm", load_train_config("push_switch", max_epochs=1),
+                                members=2, out=tmp_path / "ens", progress=False)
+    meta = json.loads((tmp_path / "ens.json").read_text())
+    meta["ensemble"]["members"] = 3
+    (tmp_path / "ens.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match="3-member ensemble"):
+        load_checkpoint(tmp_path / "ens")
+
+
+def test_split_modes():
+    shared, _ = member_splits(100, 3, 0, "shared")
+    assert all(np.array_equal(shared[0][0], s[0]) for s in shared)
+    per_member, seeds = member_splits(100, 3, 4, "per_member")
+    assert seeds == [4, 5, 6] and not np.array_equal(per_member[0][0], per_member[1][0])
+    boot, _ = member_splits(100, 3, 0, "bootstrap")
+    train, val, test = split_indices(100, 0)
+    for tr, va, te in boot:
+        assert len(tr) == len(train) and set(tr) <= set(train) and len(set(tr)) < len(tr)
+        assert np.array_equal(va, val) and np.array_equal(te, test)
+    with pytest.raises(ValueError, match="unknown split mode"):
+        member_splits(100, 3, 0, "nope")
+
+
+def test_report_says_still_improving_at_the_limit():
+    ds = make_toy_dataset("push_switch", 200, seed=2)
+    train, val, _ = split_indices(len(ds), 0)
+    # at the epoch limit while the validation loss still falls
+    model = build_model(model_config("csc_lstm", "push_switch", ds.state_size))
+    result = train_model(model, ds.subset(train), ds.subset(val),
+                         load_train_config("push_switch", max_epochs=3, patience=10), progress=False)
+    assert result.epochs_run == 3 and result.still_improving
+    # a plateau (learning rate 0): stops on patience, not still improving
+    model = build_model(model_config("csc_lstm", "push_switch", ds.state_size))
+    result = train_model(model, ds.subset(train), ds.subset(val),
+                         load_train_config("push_switch", max_epochs=50, patience=2, lr=0.0), progress=False)
+    assert result.best_epoch == 1 and result.epochs_run == 3 and not result.still_improving
+
+
+def test_wrong_typed_training_setting_is_refused():
+    with pytest.raises(ValueError, match="batch_size must be an int"):
+        load_train_config("timer", batch_size="many")
+    assert load_train_config("timer", lr="1e-3").lr == 1e-3
