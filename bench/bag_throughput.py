@@ -3,8 +3,10 @@
     .venv/bin/python bench/bag_throughput.py [--messages 50000]
 
 - recording: a publisher process sends --messages EnvObservation messages as fast as it can to the
-  recorder node (separate processes, reliable keep-all topics); prints messages/s and whether any
-  message was dropped (the bag is read back and counted);
+  recorder node (separate processes, reliable keep-all topics); prints what the recorder wrote per
+  second by its own count over its own clock (first to last write, from its closing log line),
+  the publisher's loop rate beside it, and whether any message was dropped (the bag is read back
+  and counted);
 - writing in-process (`nmrm dataset generate` path: dict -> CDR -> MCAP), messages/s;
 - reading: raw CDR (mcap), decoded (mcap_ros2), rosbags' AnyReader, and building the MIL dataset
   (`load_bag_dataset`), messages/s.
@@ -14,6 +16,7 @@ Run with scripts/ros_env.sh sourced.
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import subprocess
 import sys
@@ -64,12 +67,17 @@ def main() -> None:
     publish_s = float(pub.stdout.strip().splitlines()[-1])
     time.sleep(1.0)
     rec.send_signal(signal.SIGINT)
-    rec.communicate(timeout=60)
+    log, _ = rec.communicate(timeout=60)
+    match = re.search(r"(\d+) messages written in ([\d.]+) s \((\d+) msg/s\)", log)
+    if match is None:
+        raise SystemExit(f"no write rate in the recorder's log:\n{log}")
+    written, span, rate = int(match[1]), float(match[2]), int(match[3])
     recorded = bag_summary(out)["/nmrm/observation"][1]
     print(f"# bag throughput, {args.messages} messages")
-    print(f"recording (publisher -> recorder, separate processes): published in {publish_s:.2f} s = "
-          f"{args.messages / publish_s:.0f} msg/s; recorded {recorded}/{args.messages} "
-          f"({'no drop' if recorded == args.messages else f'{args.messages - recorded} DROPPED'})")
+    print(f"recording (publisher -> recorder, separate processes): the recorder wrote {written} messages "
+          f"in {span:.2f} s = {rate} msg/s (its own count and clock); recorded in the bag "
+          f"{recorded}/{args.messages} ({'no drop' if recorded == args.messages else f'{args.messages - recorded} DROPPED'}); "
+          f"the publisher's loop ran at {args.messages / publish_s:.0f} msg/s")
 
     episodes = max(1, args.messages // 303)
     ds = generate_screened("key", episodes, seed=0)

@@ -82,14 +82,22 @@ def parse_overrides(pairs: list) -> dict:
 
 def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
-    task, arch, repeats, n, data_seed, overrides, threads = job
+    task, arch, repeats, n, data_seed, overrides, threads, log_every = job
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
 
     ds = load_dataset(task, n, data_seed)
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
+
+    def log(entry: dict) -> bool:
+        if log_every and entry["epoch"] % log_every == 0:
+            v = np.asarray(entry["val_return_mse"])
+            print(f"    [{task} {arch}] epoch {entry['epoch']} ({entry['seconds']:.0f} s, lr {entry['lr']:.2g}): "
+                  f"val return MSE median {np.median(v):.3f}, worst {v.max():.3f}", flush=True)
+        return False
+
     run = train_ensemble_and_evaluate(ds, arch, cfg, members=repeats, split_seed=0,
-                                      split_mode="per_member", progress=False)
+                                      split_mode="per_member", progress=False, on_epoch=log)
     return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed,
              "return_mse": run.member_test[r]["return_mse"], "reward_mse": run.member_test[r]["reward_mse"],
              "seconds": run.train.seconds, "epochs": run.train.epochs_run,
@@ -152,6 +160,7 @@ def main() -> None:
                         help="training-config overrides, e.g. lr=1e-3 schedule=cosine")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--threads", type=int, default=1, help="torch threads per job")
+    parser.add_argument("--log-every", type=int, default=0, help="print validation MSE every N epochs")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
     args = parser.parse_args()
     tasks = tuple(t for table in args.tables for t in (TOY if table == "toy" else NAV))
@@ -160,7 +169,7 @@ def main() -> None:
     overrides = parse_overrides(args.set)
     if args.max_epochs is not None:
         overrides["max_epochs"] = args.max_epochs
-    jobs = [(t, a, args.repeats, args.n, args.data_seed, overrides, args.threads)
+    jobs = [(t, a, args.repeats, args.n, args.data_seed, overrides, args.threads, args.log_every)
             for t in tasks for a in args.archs]
     print(f"# {len(jobs)} ensembles of {args.repeats}: tasks {tasks}, archs {args.archs}, repeats "
           f"(seeds/splits) 0..{args.repeats - 1}, data seed {args.data_seed}, overrides {overrides}, "

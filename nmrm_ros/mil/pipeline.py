@@ -86,17 +86,17 @@ def member_splits(n: int, members: int, split_seed: int, mode: str) -> tuple[lis
 def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig,
                                 members: int, split_seed: int = 0, split_mode: str = "shared",
                                 out: str | Path | None = None, progress: bool = True,
-                                data_source: str = "") -> EnsembleRunResult:
+                                data_source: str = "", on_epoch=None) -> EnsembleRunResult:
     """Train `members` models of `architecture` as one ensemble (member m: weights and shuffle
     seeded cfg.seed + m, split per `split_mode`), evaluate each on its test split (and the
     ensemble mean on a shared one), pick the serving member (best validation return MSE) and save
-    a checkpoint to `out` if given."""
+    a checkpoint to `out` if given. on_epoch: see `train_ensemble`."""
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode)
     seeds = [cfg.seed + m for m in range(members)]
     config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout)
     ens = init_ensemble(config, seeds)
     result = train_ensemble(ens, ds, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
-                            progress=progress)
+                            progress=progress, on_epoch=on_epoch)
     member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
     member_val = [evaluate(ens.member(m), ds.subset(va)) for m, (_, va, _) in enumerate(splits)]
     serving = int(np.argmin([v["return_mse"] for v in member_val]))

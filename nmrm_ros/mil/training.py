@@ -210,13 +210,16 @@ def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
 
 
 def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
-                   seeds: list | None = None, progress: bool = True) -> EnsembleTrainResult:
+                   seeds: list | None = None, progress: bool = True,
+                   on_epoch=None) -> EnsembleTrainResult:
     """Train every member of `ens` in place on `ds`.
 
     splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
-    sizes); seeds: K seeds of the members' shuffles and dropout (default cfg.seed + m). Each
-    member's normalisation is fitted on its own training split. On return each member holds its
-    best-validation weights.
+    sizes); seeds: K seeds of the members' shuffles (default cfg.seed + m; dropout draws from
+    torch's generator, seeded with seeds[0]). Each member's normalisation is fitted on its own
+    training split. on_epoch(entry) is called after each epoch with its history entry (plus
+    "seconds": wall time since the start); returning True stops the run. On return each member
+    holds its best-validation weights.
     """
     K = ens.members
     if len(splits) != K:
@@ -272,13 +275,14 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         val_mse = return_mse(ens, bags, index=val_idx)
         history.append({"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist(),
                         "val_return_mse": val_mse.tolist(), "lr": optimiser.param_groups[0]["lr"]})
+        stop = on_epoch is not None and on_epoch(dict(history[-1], seconds=time.perf_counter() - start))
         for m in np.flatnonzero(val_mse < best_mse):
             best_mse[m], best_epoch[m] = val_mse[m], epoch
             best_state[m] = ens.member_state(int(m))
         if bar is not None:
             bar.update(1)
             bar.set_postfix(val_mse=f"{np.median(val_mse):.4f}", worst_best=f"{best_mse.max():.4f}")
-        if np.all(epoch - best_epoch >= cfg.patience):
+        if stop or np.all(epoch - best_epoch >= cfg.patience):
             break
     if bar is not None:
         bar.close()

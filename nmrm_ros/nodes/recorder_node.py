@@ -4,7 +4,8 @@ The bag is a directory (`output`) with metadata.yaml and one .mcap (ros2 profile
 schemas embedded): `ros2 bag info/play`, Foxglove, the `mcap` CLI and `rosbags` read it. Each
 message is logged at its receive time. Ctrl-C / SIGTERM close the bag cleanly. Completed chunks
 are flushed to disk every `flush_period` s, so after a hard kill `nmrm bag repair OUTPUT`
-recovers all but the last chunk.
+recovers all but the last chunk. On close it logs how many messages it wrote and its own write
+rate (messages over the time from its first to its last write).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ class RecorderNode(Node):
     def __init__(self) -> None:
         self.exit_code = None
         self.messages_received = 0
+        self.first_write = self.last_write = None  # perf_counter() of the first / last write
         self.bag = None
         super().__init__("recorder")
         p = declare_parameters(self, PARAMETERS)
@@ -66,12 +68,24 @@ class RecorderNode(Node):
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         self.bag.write_cdr(topic, type_name, data, self.get_clock().now().nanoseconds)
         self.messages_received += 1
+        self.last_write = time.perf_counter()
+        if self.first_write is None:
+            self.first_write = self.last_write
+
+    def write_rate(self) -> str:
+        """'N messages written in S s (R msg/s)', from the recorder's own count and clock."""
+        if self.messages_received < 2:
+            return f"{self.messages_received} messages written"
+        span = self.last_write - self.first_write
+        return (f"{self.messages_received} messages written in {span:.3f} s "
+                f"({(self.messages_received - 1) / span:.0f} msg/s)")
 
     def close(self) -> None:
         if self.bag is not None and not self.bag.closed:
             self.bag.close()
             counts = ", ".join(f"{t} {n}" for t, n in self.bag.counts.items())
-            self.get_logger().info(f"closed {self.bag.path}: {self.messages_received} messages ({counts})")
+            self.get_logger().info(f"closed {self.bag.path}: {self.messages_received} messages ({counts}); "
+                                   f"{self.write_rate()}")
 
 
 def main(args=None) -> int:
