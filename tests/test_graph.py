@@ -135,6 +135,36 @@ def test_bad_observations_are_dropped_and_counted(capture):
     assert "3 broken episode(s)" in out_rm and "labelled 1 episode(s), 3 broken" in out_lab
 
 
+def test_reward_model_serves_an_ensemble(capture, tmp_path):
+    """An ensemble checkpoint: RewardStep carries the members' mean reward, their spread
+    (reward_std, return_std) and the serving member's hidden state, as the online ensemble
+    computes them."""
+    from nmrm_ros.mil import OnlineRewardModel
+    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+
+    ds = generate_screened("key", 200, seed=1)
+    run = train_ensemble_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=1),
+                                      members=3, out=tmp_path / "ens", progress=False)
+    rm = start("reward_model", mode="model", checkpoint=str(run.checkpoint), task="key")
+    pub = capture.publisher(EnvObservation, OBSERVATION)
+    assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)
+    states = ds.states[0, :6].astype(float)
+    for t, s in enumerate(states):
+        pub.publish(EnvObservation(task="key", episode=0, step=t, state=list(s), truncated=t == 5))
+    assert capture.spin_until(lambda: len(capture.msgs["reward_step"]) >= 6, 20)
+    rm.send_signal(2)
+    code, out = finish(rm)
+    assert code == 0, out
+    model, _ = load_checkpoint(run.checkpoint)
+    online = OnlineRewardModel(model)
+    for m, s in zip(sorted(capture.msgs["reward_step"], key=lambda m: m.step), states):
+        reward, hidden = online.step(s)
+        assert m.reward == pytest.approx(reward, abs=1e-5)
+        assert m.reward_std == pytest.approx(online.reward_std, abs=1e-5) and m.reward_std > 0
+        assert m.return_std == pytest.approx(online.return_std, abs=1e-5)
+        np.testing.assert_allclose(m.hidden, hidden, atol=1e-6)
+
+
 @pytest.mark.parametrize("node,params,message", [
     ("env_sim", {"task": "maze"}, "unknown task 'maze'"),
     ("labeller_oracle", {"task": "maze"}, "unknown task 'maze'"),
