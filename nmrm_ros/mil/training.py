@@ -107,8 +107,8 @@ def load_train_config(task: str, path: str | Path | None = None, **overrides) ->
     entry), then `overrides` (None values ignored)."""
     with open(path or _config_path()) as f:
         table = yaml.safe_load(f)
-    if task not in table:
-        known = ", ".join(k for k in table if k != "defaults")
+    if task not in table or task.startswith("_"):
+        known = ", ".join(k for k in table if k != "defaults" and not k.startswith("_"))
         raise ValueError(f"no training config for {task!r} in {path or _config_path()}; known: {known}")
     values = dict(table.get("defaults", {}), **table[task])
     values.update({k: v for k, v in overrides.items() if v is not None})
