@@ -1,5 +1,5 @@
 """Benchmark: per-step latency of the online reward model (what the reward-model node runs), for
-each architecture at 2D-navigation and Lunar Lander sizes, against a torch step for reference.
+each architecture at 2D-navigation and Lunar Lander sizes, and for a 10-member CSC ensemble.
 
     .venv/bin/python bench/online_step.py [--steps 20000]
 """
@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from nmrm_ros.mil import ARCHITECTURES, OnlineRewardModel, build_model, model_config
+from nmrm_ros.mil.ensemble import init_ensemble
 
 
 def main() -> None:
@@ -24,9 +25,12 @@ def main() -> None:
     print(f"{'task family':13s} {'architecture':15s} {'median µs':>10s} {'p99 µs':>8s}")
     for task, d in (("key", 2), ("lunar_lander", 8)):
         states = np.random.default_rng(0).normal(size=(args.steps, d)).astype(np.float32)
-        for arch in ARCHITECTURES:
+        for arch in (*ARCHITECTURES, "csc_lstm x10"):
             torch.manual_seed(0)
-            online = OnlineRewardModel(build_model(model_config(arch, task, d)))
+            if arch.endswith("x10"):
+                online = OnlineRewardModel(init_ensemble(model_config("csc_lstm", task, d), range(10)))
+            else:
+                online = OnlineRewardModel(build_model(model_config(arch, task, d)))
             times = np.empty(args.steps)
             for i in range(args.steps):
                 if i % 100 == 0:

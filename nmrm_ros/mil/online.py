@@ -22,14 +22,17 @@ from .ensemble import MILEnsemble
 from .models import MILRewardModel
 
 
-def _stacked_linear(ens: MILEnsemble, prefix: str, names: list) -> list:
-    """[(W (K, out, in), b (K, out, 1))] float64 of each Linear layer of `prefix`."""
-    out = []
-    for name in names:
-        w = ens.params[f"{prefix}__{name}__weight"].detach().double().numpy().copy()
-        b = ens.params[f"{prefix}__{name}__bias"].detach().double().numpy().copy()
-        out.append((w, b[..., None]))
-    return out
+def _arrays(tensor: torch.Tensor, single: bool) -> np.ndarray:
+    """A float64 copy; without its leading member axis when the ensemble has one member."""
+    a = tensor.detach().double().numpy().copy()
+    return a[0] if single else a
+
+
+def _stacked_linear(ens: MILEnsemble, prefix: str, names: list, single: bool) -> list:
+    """[(W (K, out, in), b (K, out))] float64 of each Linear layer of `prefix` ((out, in), (out,)
+    for one member)."""
+    return [(_arrays(ens.params[f"{prefix}__{name}__weight"], single),
+             _arrays(ens.params[f"{prefix}__{name}__bias"], single)) for name in names]
 
 
 class OnlineRewardModel:
@@ -48,16 +51,19 @@ class OnlineRewardModel:
         self.serving = int(ens.serving_member)
         self.architecture = cfg.architecture
         self.input_size = cfg.input_size
-        self.shift = ens.input_shift.double().numpy().copy()  # (K, d)
-        self.scale = ens.input_scale.double().numpy().copy()
+        # one member: arrays without the member axis, plain matrix-vector products (a stacked
+        # matmul costs twice as much per call, and this runs once per observation)
+        single = self.members == 1
+        self.shift = _arrays(ens.input_shift, single)  # (K, d) or (d,)
+        self.scale = _arrays(ens.input_scale, single)
         self.return_scale = float(ens.return_scale)
         self.leaky = cfg.output_activation == "leaky_relu"
-        self.fe = _stacked_linear(ens, "feature_extractor", ens._fe)
-        self.head = _stacked_linear(ens, "head", ens._head)
+        self.fe = _stacked_linear(ens, "feature_extractor", ens._fe, single)
+        self.head = _stacked_linear(ens, "head", ens._head, single)
         self.uses_lstm = ens.uses_lstm
         self.k = ens.hidden_size
         if self.uses_lstm:
-            p = {n: v.detach().double().numpy().copy() for n, v in ens.params.items()}
+            p = {n: _arrays(v, single) for n, v in ens.params.items()}
             self.w_ih = p["lstm__weight_ih_l0"]  # (K, 4k, F)
             self.w_hh = p["lstm__weight_hh_l0"]  # (K, 4k, k)
             self.bias = p["lstm__bias_ih_l0"] + p["lstm__bias_hh_l0"]  # (K, 4k)
@@ -70,23 +76,25 @@ class OnlineRewardModel:
         if self.uses_lstm:
             self.states_h = self.h0.copy()
             self.states_c = self.c0.copy()
-            self.hidden = self.states_h[self.serving].copy()
+            self.hidden = self.states_h if K == 1 else self.states_h[self.serving]
         else:
             self.hidden = np.zeros(0)
-        self.previous_partial = np.zeros(K)
-        self.partial_returns = np.zeros(K)
-        self.rewards = np.zeros(K)
+        shape = () if K == 1 else (K,)
+        self.previous_partial = np.zeros(shape)
+        self.partial_returns = np.zeros(shape)
+        self.rewards = np.zeros(shape)
         self.reward_std = 0.0
         self.return_std = 0.0
         self.t = 0
 
     @staticmethod
-    def _apply(w: np.ndarray, b: np.ndarray, z: np.ndarray) -> np.ndarray:
+    def _apply(w: np.ndarray, b: np.ndarray | None, z: np.ndarray) -> np.ndarray:
         """Each member's layer on its own input: (K, out, in) x (K, in) -> (K, out)."""
-        return (np.matmul(w, z[..., None]) + b)[..., 0]
+        y = w @ z if w.ndim == 2 else np.matmul(w, z[..., None])[..., 0]
+        return y if b is None else y + b
 
     def _fe(self, x: np.ndarray) -> np.ndarray:
-        z = (x[None, :] - self.shift) / self.scale
+        z = (x - self.shift) / self.scale
         for w, b in self.fe:
             z = np.maximum(self._apply(w, b, z), 0.0)
         return z
@@ -97,7 +105,7 @@ class OnlineRewardModel:
             z = self._apply(w, b, z)
             if i < last:
                 z = np.maximum(z, 0.0)
-        y = z[:, 0]
+        y = z[..., 0]
         if self.leaky:
             y = np.where(y < 0, y * 1e-6, y)
         return y * self.return_scale
@@ -115,26 +123,27 @@ class OnlineRewardModel:
         if not self.uses_lstm:
             rewards = self._out(f)
         else:
-            gates = (np.matmul(self.w_ih, f[..., None])[..., 0]
-                     + np.matmul(self.w_hh, self.states_h[..., None])[..., 0] + self.bias)
+            gates = self._apply(self.w_ih, self.bias, f) + self._apply(self.w_hh, None, self.states_h)
             k = self.k
-            i = 1.0 / (1.0 + np.exp(-gates[:, :k]))
-            fg = 1.0 / (1.0 + np.exp(-gates[:, k:2 * k]))
-            g = np.tanh(gates[:, 2 * k:3 * k])
-            o = 1.0 / (1.0 + np.exp(-gates[:, 3 * k:]))
+            i = 1.0 / (1.0 + np.exp(-gates[..., :k]))
+            fg = 1.0 / (1.0 + np.exp(-gates[..., k:2 * k]))
+            g = np.tanh(gates[..., 2 * k:3 * k])
+            o = 1.0 / (1.0 + np.exp(-gates[..., 3 * k:]))
             self.states_c = fg * self.states_c + i * g
             self.states_h = o * np.tanh(self.states_c)
-            self.hidden = self.states_h[self.serving].copy()
+            self.hidden = self.states_h if self.members == 1 else self.states_h[self.serving]
             if self.architecture == "embedding_lstm":
                 partial = self._out(self.states_h)
                 rewards = partial - self.previous_partial
                 self.previous_partial = partial
             elif self.architecture == "csc_lstm":
-                rewards = self._out(np.concatenate([f, self.states_h], axis=1))
+                rewards = self._out(np.concatenate([f, self.states_h], axis=-1))
             else:
                 rewards = self._out(self.states_h)
         self.rewards = rewards
-        self.partial_returns = self.partial_returns + rewards
+        self.partial_returns += rewards
+        if self.members == 1:  # no spread to compute (np.std is ~5 µs a call)
+            return float(rewards), self.hidden.copy()
         self.reward_std = float(rewards.std())
         self.return_std = float(self.partial_returns.std())
         return float(rewards.mean()), self.hidden.copy()
