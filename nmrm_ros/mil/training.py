@@ -281,7 +281,11 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             best_state[m] = ens.member_state(int(m))
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(val_mse=f"{np.median(val_mse):.4f}", worst_best=f"{best_mse.max():.4f}")
+            if K == 1:
+                bar.set_postfix(val_mse=f"{val_mse[0]:.4f}", best=f"{best_mse[0]:.4f}@{best_epoch[0]}")
+            else:
+                bar.set_postfix(val_mse_median=f"{np.median(val_mse):.4f}",
+                                worst_member_best=f"{best_mse.max():.4f}")
         if stop or np.all(epoch - best_epoch >= cfg.patience):
             break
     if bar is not None:
