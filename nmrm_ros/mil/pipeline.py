@@ -13,7 +13,7 @@ from ..datasets.trajectories import TrajectoryDataset
 from .checkpoint import save_checkpoint
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
-from .evaluation import evaluate, evaluate_ensemble
+from .evaluation import evaluate
 from .models import MILRewardModel, build_model, model_config
 from .training import EnsembleTrainResult, TrainConfig, TrainResult, train_ensemble, train_model
 
@@ -103,7 +103,7 @@ def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: T
     ens.serving_member.fill_(serving)
     ensemble_test = None
     if split_mode != "per_member":
-        ensemble_test = evaluate_ensemble(ens, ds.subset(splits[0][2]))
+        ensemble_test = evaluate(ens, ds.subset(splits[0][2]))
     path = None
     if out is not None:
         path = save_checkpoint(

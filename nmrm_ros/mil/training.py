@@ -143,12 +143,6 @@ def _config_path() -> Path:
     return Path(get_package_share_directory("nmrm_ros")) / "config" / "mil_training.yaml"
 
 
-def fit_normalisation(model: MILRewardModel, train: TrajectoryDataset, cfg: TrainConfig) -> None:
-    """Set the model's input normalisation from the training split only."""
-    shift, scale = normalisation(train, cfg.normalisation)
-    model.set_normalisation(torch.as_tensor(shift), torch.as_tensor(scale), cfg.return_scale)
-
-
 @torch.no_grad()
 def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size: int = 512,
                scaled: bool = False, index: torch.Tensor | None = None) -> np.ndarray | float:
