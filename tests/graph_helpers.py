@@ -40,32 +40,49 @@ def launch(*arguments: str) -> subprocess.Popen:
                             env=os.environ.copy())
 
 
+_TOPICS = {"observation": (EnvObservation, OBSERVATION), "action": (AgentAction, ACTION),
+           "reward_step": (RewardStep, REWARD_STEP), "label": (TrajectoryReturn, TRAJECTORY_RETURN),
+           "oracle_step": (OracleStep, ORACLE_STEP)}
+
+
 class Capture:
-    """An in-process rclpy node that records every message on the nmrm topics."""
+    """An in-process rclpy node that records every message on the nmrm topics.
 
-    def __init__(self) -> None:
-        self.open()
+    Topics named in `deferred` are subscribed to only by `subscribe_when_matched`: a graph whose
+    env_sim waits for this capture's observation subscription then starts only after the capture
+    has matched every other node's publisher. Waiting a fixed time is not enough: discovery between
+    a process that started earlier (this one) and the graph's nodes can take seconds, and the
+    topics are volatile, so a late match loses everything published before it.
+    """
 
-    def missing_topics(self, keys=("observation", "action", "reward_step", "label")) -> list:
-        """Topics on which nothing arrived. Known issue (see README): an in-process viewer in the
-        pytest process sometimes receives nothing on one whole topic; tests rerun once then."""
-        return [k for k in keys if not self.msgs[k]]
-
-    def reopen(self) -> None:
-        self.close()
-        self.open()
-
-    def open(self) -> None:
+    def __init__(self, deferred: tuple = ()) -> None:
+        self.deferred = tuple(deferred)
         rclpy.init()
         self.node = rclpy.create_node("test_capture")
-        self.msgs: dict = {k: [] for k in ("observation", "action", "reward_step", "label", "oracle_step")}
-        for key, typ, topic in (("observation", EnvObservation, OBSERVATION), ("action", AgentAction, ACTION),
-                                ("reward_step", RewardStep, REWARD_STEP),
-                                ("label", TrajectoryReturn, TRAJECTORY_RETURN),
-                                ("oracle_step", OracleStep, ORACLE_STEP)):
-            self.node.create_subscription(typ, topic, self.msgs[key].append, STEP_QOS)
+        self.msgs: dict = {k: [] for k in _TOPICS}
+        self.subs: dict = {}
+        for key in _TOPICS:
+            if key not in self.deferred:
+                self._subscribe(key)
         self.executor = _executor()
         self.executor.add_node(self.node)
+
+    def _subscribe(self, key: str) -> None:
+        typ, topic = _TOPICS[key]
+        self.subs[key] = self.node.create_subscription(typ, topic, self.msgs[key].append, STEP_QOS)
+
+    def wait_for_publishers(self, publishers: dict, timeout: float = 60.0) -> None:
+        """Spin until the capture has matched `publishers[key]` publishers on each topic `key`."""
+        def counts():
+            return {k: self.subs[k].get_publisher_count() for k in publishers}
+        if not self.spin_until(lambda: all(c >= publishers[k] for k, c in counts().items()), timeout):
+            raise AssertionError(f"capture matched publishers {counts()}, expected {publishers}")
+
+    def subscribe_when_matched(self, publishers: dict, timeout: float = 60.0) -> None:
+        """`wait_for_publishers`, then subscribe to the deferred topics."""
+        self.wait_for_publishers(publishers, timeout)
+        for key in self.deferred:
+            self._subscribe(key)
 
     def publisher(self, typ, topic):
         return self.node.create_publisher(typ, topic, STEP_QOS)

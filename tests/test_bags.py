@@ -41,17 +41,14 @@ def _rosbags_messages(path):
 
 def test_live_graph_recorded_exactly(capture, tmp_path):
     """The collect graph's recording holds exactly what was published, for rosbags and mcap."""
-    for attempt in range(2):  # once more if the in-process capture missed a whole topic
-        out = tmp_path / f"live{attempt}"
-        _record_live(capture, out)
-        if not capture.missing_topics(("observation",)):
-            break
-        capture.reopen()
+    out = tmp_path / "live"
+    _record_live(capture, out)
     _check_live_recording(capture, out)
 
 
 def _record_live(capture, out):
-    # env_sim waits for labeller, agent, recorder and this capture (4 observation subscribers)
+    # env_sim waits for labeller, agent, recorder and this capture (4 observation subscribers);
+    # the capture only checks observations, so it needs no other publisher matched
     proc = subprocess.Popen([executable("nmrm"), "launch", str(LAUNCH), "episodes:=3", f"out:={out}",
                              "wait_for_subscribers:=4", "start_delay:=1.0"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -1,5 +1,6 @@
 """The node graph over real topics, each node its own process (each test on its own domain)."""
 
+import sys
 from collections import Counter
 
 import numpy as np
@@ -24,6 +25,14 @@ def capture(ros_domain):
     cap.close()
 
 
+@pytest.fixture
+def graph_capture(ros_domain):
+    """A capture for `run_graph`: it subscribes to observations once it has matched the graph."""
+    cap = Capture(deferred=("observation",))
+    yield cap
+    cap.close()
+
+
 @pytest.fixture(scope="module")
 def key_checkpoint(tmp_path_factory):
     """A small CSC model trained for a few epochs on Key trajectories."""
@@ -35,19 +44,18 @@ def key_checkpoint(tmp_path_factory):
 
 
 def run_graph(capture, *arguments):
-    """Launch the graph with one extra subscriber (the capture) and wait for it to finish; once
-    more if the in-process capture missed a whole topic (a viewer problem, see Capture)."""
-    out = _run_graph(capture, *arguments)
-    if capture.missing_topics():
-        capture.reopen()
-        out = _run_graph(capture, *arguments)
-    return out
+    """Launch the graph with one extra subscriber (the capture) and wait for it to finish.
 
-
-def _run_graph(capture, *arguments):
-    # env_sim waits for 3 observation subscribers: labeller, reward model and this capture
-    # and 1 s more, so that the capture also matches the reward model's and labeller's publishers
+    env_sim waits for 3 observation subscribers: labeller, reward model and the capture, which
+    subscribes only once it has matched the agent's, labeller's and reward model's publishers
+    (then 1 s more, for those publishers to match the capture's subscriptions in turn).
+    """
     proc = launch(*arguments, f"episodes:={EPISODES}", "wait_for_subscribers:=3", "start_delay:=1.0")
+    try:
+        capture.subscribe_when_matched({"action": 1, "reward_step": 1, "label": 1, "oracle_step": 1})
+    except AssertionError:
+        proc.kill()
+        raise AssertionError(f"{sys.exc_info()[1]}\n{finish(proc)[1]}") from None
     capture.spin_until(lambda: proc.poll() is not None, 90)
     code, out = finish(proc, timeout=30)
     capture.spin_for(0.3)
@@ -70,7 +78,8 @@ def check_lockstep(capture, task="key"):
     return eps
 
 
-def test_graph_oracle_mode_and_labeller(capture):
+def test_graph_oracle_mode_and_labeller(graph_capture):
+    capture = graph_capture
     out = run_graph(capture, "mode:=oracle", "task:=key")
     eps = check_lockstep(capture)
     oracle = make_oracle("key")
@@ -91,7 +100,8 @@ def test_graph_oracle_mode_and_labeller(capture):
     assert "labelled 3 episode(s), 0 broken" in out
 
 
-def test_graph_model_mode_equals_batched_forward(capture, key_checkpoint):
+def test_graph_model_mode_equals_batched_forward(graph_capture, key_checkpoint):
+    capture = graph_capture
     run_graph(capture, "mode:=model", f"checkpoint:={key_checkpoint}", "task:=key")
     eps = check_lockstep(capture)
     model, _ = load_checkpoint(key_checkpoint)
@@ -110,6 +120,7 @@ def test_bad_observations_are_dropped_and_counted(capture):
     lab = start("labeller_oracle", task="key")
     pub = capture.publisher(EnvObservation, OBSERVATION)
     assert capture.spin_until(lambda: pub.get_subscription_count() >= 3, 30)  # rm, lab, capture
+    capture.wait_for_publishers({"reward_step": 1, "label": 1}, 30)
     def obs(e, t, state, truncated=False):
         return EnvObservation(task="key", episode=e, step=t, state=state, truncated=truncated)
     sent = [obs(0, 0, [0.5, 0.5]), obs(0, 1, [0.5, 0.5, 0.5]),                  # wrong size
@@ -148,6 +159,7 @@ def test_reward_model_serves_an_ensemble(capture, tmp_path):
     rm = start("reward_model", mode="model", checkpoint=str(run.checkpoint), task="key")
     pub = capture.publisher(EnvObservation, OBSERVATION)
     assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)
+    capture.wait_for_publishers({"reward_step": 1}, 30)
     states = ds.states[0, :6].astype(float)
     for t, s in enumerate(states):
         pub.publish(EnvObservation(task="key", episode=0, step=t, state=list(s), truncated=t == 5))
