@@ -1,7 +1,8 @@
 """`nmrm launch`: run a ROS 2 YAML launch file's nodes as separate processes, without ros2 launch.
 
 ROS 2's launch / launch_ros are not on PyPI, so this runs the documented subset of the ROS 2 YAML
-launch format that our launch files use (they stay valid for `ros2 launch` on a ROS 2 install):
+launch format that our launch files use, with the same typing rules as launch_yaml + launch_ros
+(a file one accepts the other accepts; the tests run every launch file under both):
 
     launch:
     - arg: {name: task, default: key}               # overridable as task:=timer
@@ -11,14 +12,16 @@ launch format that our launch files use (they stay valid for `ros2 launch` on a 
         name: env_sim                               # -> --ros-args -r __node:=env_sim
         namespace: /robot1                          # -> -r __ns:=/robot1  (optional)
         param:
-        - {name: task, value: $(var task)}          # -> -p task:=...
+        - {name: task, value: $(var task)}          # substituted, then read as YAML
+        - {name: rate, value: 1.0}                  # a double ("1.0" quoted is a string)
         - {from: $(find-pkg-share nmrm_ros)/config/graph.yaml}   # -> --params-file ...
         remap:
         - {from: nmrm/observation, to: obs}         # -> -r nmrm/observation:=obs
         args: "--extra args"                        # appended before --ros-args (optional)
 
 Substitutions: $(var NAME), $(find-pkg-share PKG), $(find-pkg-prefix PKG), $(env NAME [DEFAULT]).
-Anything else in the file is an error (not silently ignored).
+Anything else in the file is an error (not silently ignored). Extras over `ros2 launch`: the
+launcher exits non-zero naming the node when one dies (ros2 launch exits 0), and stops the others.
 
 Process handling: each node's output is prefixed with its name. Ctrl-C / SIGTERM are forwarded as
 SIGINT to every node (SIGTERM after `grace` seconds, SIGKILL after twice that). When a node exits
@@ -65,10 +68,10 @@ def _prefix(pkg: str) -> Path:
                           f"(AMENT_PREFIX_PATH={os.environ.get('AMENT_PREFIX_PATH', '')!r})") from None
 
 
-def substitute(text, variables: dict) -> str:
-    """Resolve the supported $(...) substitutions in `text`."""
+def substitute(text, variables: dict, what: str = "value") -> str:
+    """Resolve the supported $(...) substitutions in `text` (a string, as launch_yaml requires)."""
     if not isinstance(text, str):
-        return str(text).lower() if isinstance(text, bool) else str(text)
+        raise LaunchError(f"{what} must be a string (quote it), got {type(text).__name__} {text!r}")
 
     def one(match: re.Match) -> str:
         parts = match.group(1).split()
@@ -93,12 +96,54 @@ def substitute(text, variables: dict) -> str:
     return _SUBST.sub(one, text)
 
 
+_SCALARS = (bool, int, float, str)
+
+
+def parameter_value(raw, variables: dict, name: str):
+    """A `name/value` parameter's value as launch_ros hands it to the node (launch_yaml rules).
+
+    A YAML scalar (`true`, `5`, `1.0`) is kept as it is; a string with no substitution stays a
+    string (`"true"`, `"1.0"` are strings); a string with `$(...)` is substituted and the result read
+    as YAML (`"5"` -> 5, `""` -> ""); a list applies these rules to each item and must be of one
+    type. Anything else is a LaunchError, as it is an error under `ros2 launch`.
+    """
+    def item(value):
+        if isinstance(value, bool) or isinstance(value, (int, float)):
+            return value
+        if not isinstance(value, str):
+            raise LaunchError(f"parameter {name!r}: unsupported value {value!r}")
+        if not _SUBST.search(value):
+            return value
+        text = substitute(value, variables)
+        if text == "":
+            return ""
+        try:
+            parsed = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise LaunchError(f"parameter {name!r}: {text!r} is not valid YAML") from None
+        if isinstance(parsed, _SCALARS) or (isinstance(parsed, list) and _uniform(parsed)):
+            return parsed
+        raise LaunchError(f"parameter {name!r}: {text!r} is not a bool, int, float, string or "
+                          f"a non-empty list of one of them")
+
+    if isinstance(raw, list):
+        values = [item(v) for v in raw]
+        if not _uniform(values):
+            raise LaunchError(f"parameter {name!r}: a list must be non-empty and of one type, got {raw!r}")
+        return values
+    return item(raw)
+
+
+def _uniform(values: list) -> bool:
+    return bool(values) and all(type(v) is type(values[0]) and isinstance(v, _SCALARS) for v in values)
+
+
 def parse_launch_file(path: str | Path, arguments: dict | None = None,
                       params_dir: str | Path | None = None) -> list:
     """The node commands of a launch file, with `arguments` (name -> value) overriding defaults.
 
     `name/value` parameters are written, as launch_ros does, to parameter files in `params_dir`
-    (a new temporary directory if None), values parsed as YAML ("5" -> 5, "" -> "")."""
+    (a new temporary directory if None), values typed by the launch_yaml rules (`parameter_value`)."""
     path = Path(path)
     if not path.is_file():
         raise LaunchError(f"no launch file {path}")
@@ -121,7 +166,7 @@ def parse_launch_file(path: str | Path, arguments: dict | None = None,
             if name in arguments:
                 variables[name] = arguments.pop(name)
             elif "default" in body:
-                variables[name] = substitute(body["default"], variables)
+                variables[name] = substitute(body["default"], variables, f"default of argument {name!r}")
             else:
                 raise LaunchError(f"launch argument {name!r} has no default; give {name}:=VALUE")
         elif kind == "node":
@@ -138,15 +183,18 @@ def _node(body: dict, variables: dict, path: Path, params_dir: Path) -> NodeSpec
     extra = set(body) - known
     if extra:
         raise LaunchError(f"{path}: unsupported node attribute(s) {sorted(extra)}")
-    pkg, exe = substitute(body["pkg"], variables), substitute(body["exec"], variables)
+    def attr(key: str, default=None) -> str:
+        return substitute(body.get(key, default), variables, f"node attribute {key!r}")
+
+    pkg, exe = attr("pkg"), attr("exec")
     executable = _prefix(pkg) / "lib" / pkg / exe
     if not os.access(executable, os.X_OK):
         raise LaunchError(f"no executable {exe!r} in package {pkg!r} ({executable})")
-    name = substitute(body.get("name", exe), variables)
-    cmd = [str(executable), *shlex.split(substitute(body.get("args", ""), variables)), "--ros-args",
+    name = attr("name", exe)
+    cmd = [str(executable), *shlex.split(attr("args", "")), "--ros-args",
            "-r", f"__node:={name}"]
     if "namespace" in body:
-        cmd += ["-r", f"__ns:={substitute(body['namespace'], variables)}"]
+        cmd += ["-r", f"__ns:={attr('namespace')}"]
     group: dict = {}
 
     def flush() -> None:
@@ -161,11 +209,10 @@ def _node(body: dict, variables: dict, path: Path, params_dir: Path) -> NodeSpec
             flush()
             cmd += ["--params-file", substitute(p["from"], variables)]
         else:
-            if isinstance(p["value"], list):
-                value = [yaml.safe_load(substitute(v, variables)) for v in p["value"]]
-            else:
-                value = yaml.safe_load(substitute(p["value"], variables))
-            group[p["name"]] = "" if value is None else value
+            name_ = substitute(p["name"], variables, "a parameter's name")
+            if "value" not in p:
+                raise LaunchError(f"{path}: parameter {name_!r} of node {name!r} has no value")
+            group[name_] = parameter_value(p["value"], variables, name_)
     flush()
     for r in body.get("remap", []) or []:
         cmd += ["-r", f"{substitute(r['from'], variables)}:={substitute(r['to'], variables)}"]

@@ -32,14 +32,14 @@ from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 PARAMETERS = {
     "task": Param("key", "timer | moving | key | charger | lunar_lander"),
     "seed": Param(0, "seed of episode 0; episode e resets with seed + e"),
-    "episodes": Param(1, "number of episodes to run, 0 = for ever"),
+    "episodes": Param(1, "number of episodes to run, 0 = for ever", 0),
     "continuous": Param(False, "continuous-action variant of the navigation tasks"),
-    "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation"),
-    "max_retries": Param(3, "re-publications of one observation before giving up (exit 1)"),
-    "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting"),
+    "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation", 0.001),
+    "max_retries": Param(3, "re-publications of one observation before giving up (exit 1)", 0),
+    "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting", 0),
     "wait_for_nodes": Param([""], "names of nodes whose observation subscriptions to wait for"),
-    "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher"),
-    "start_delay": Param(0.0, "seconds to wait once ready, so late endpoints of other nodes match"),
+    "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher", 0.001),
+    "start_delay": Param(0.0, "seconds to wait once ready, so late endpoints of other nodes match", 0.0),
 }
 
 

@@ -36,7 +36,7 @@ PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "task": Param("key", "task whose oracle labels the episodes"),
     "publish_oracle_steps": Param(True, "also publish per-step ground truth (OracleStep)"),
-    "label_noise_std": Param(0.0, "std of Gaussian noise added to each published return"),
+    "label_noise_std": Param(0.0, "std of Gaussian noise added to each published return", 0.0),
     "noise_seed": Param(0, "seed of the label noise"),
 }
 

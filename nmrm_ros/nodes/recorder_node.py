@@ -25,8 +25,8 @@ PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "output": Param("", "bag directory to create (default: bags/recording_<UTC time>)"),
     "topics": Param(list(TOPIC_TYPES), "topics to record (nmrm_msgs types)"),
-    "flush_period": Param(1.0, "seconds between flushes of completed chunks to disk"),
-    "chunk_size": Param(262144, "MCAP chunk size in bytes (smaller: less lost on a hard kill)"),
+    "flush_period": Param(1.0, "seconds between flushes of completed chunks to disk", 0.001),
+    "chunk_size": Param(262144, "MCAP chunk size in bytes (smaller: less lost on a hard kill)", 1024),
 }
 
 

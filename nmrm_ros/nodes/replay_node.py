@@ -21,13 +21,13 @@ from .recorder_node import message_class
 
 PARAMETERS = {
     "bag": Param("", "bag directory (or .mcap file) to replay"),
-    "rate": Param(0.0, "playback speed factor of the recorded timing; 0 = as fast as subscribers take"),
+    "rate": Param(0.0, "playback speed factor of the recorded timing; 0 = as fast as subscribers take", 0.0),
     "topics": Param([""], "topics to replay (empty = all)"),
     "loop": Param(False, "start over at the end"),
-    "wait_for_subscribers": Param(1, "subscribers to wait for on each replayed topic"),
+    "wait_for_subscribers": Param(1, "subscribers to wait for on each replayed topic", 0),
     "wait_for_nodes": Param([""], "names of nodes whose subscriptions to wait for (any replayed topic)"),
-    "startup_timeout": Param(60.0, "seconds to wait for subscribers"),
-    "start_delay": Param(0.0, "seconds to wait once subscribers are there (lets downstream endpoints match)"),
+    "startup_timeout": Param(60.0, "seconds to wait for subscribers", 0.001),
+    "start_delay": Param(0.0, "seconds to wait once subscribers are there (lets downstream endpoints match)", 0.0),
 }
 
 

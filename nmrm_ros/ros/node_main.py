@@ -20,20 +20,63 @@ from typing import Any, Callable
 class Param:
     default: Any
     description: str
+    minimum: float | None = None  # inclusive lower bound of a number (checked at start-up)
 
 
 class NodeError(RuntimeError):
     """A configuration or input error that stops a node with a clear message."""
 
 
+_TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a double", str: "a string"}
+
+
+def _type_name(value) -> str:
+    if isinstance(value, (list, tuple)):
+        inner = _TYPE_NAMES.get(type(value[0]), "a value").split(" ", 1)[1] if value else "string"
+        return f"{inner} array"
+    return _TYPE_NAMES.get(type(value), type(value).__name__)
+
+
+def _coerce(name: str, given, default):
+    """`given` (an override of another type than `default`) as the declared type, where that is
+    lossless and unambiguous: an integer for a double, one string for a string array."""
+    if isinstance(default, float) and isinstance(given, int) and not isinstance(given, bool):
+        return float(given)
+    if isinstance(default, (list, tuple)) and all(isinstance(d, str) for d in default) and isinstance(given, str):
+        return [given]
+    if (isinstance(default, (list, tuple)) and default and isinstance(default[0], float)
+            and isinstance(given, (list, tuple)) and all(isinstance(g, int) and not isinstance(g, bool) for g in given)):
+        return [float(g) for g in given]
+    raise NodeError(f"parameter {name!r} must be {_type_name(default)}, got {_type_name(given)} {given!r}")
+
+
 def declare_parameters(node, table: dict) -> dict:
-    """Declare every parameter of `table` on `node`; return name -> value."""
+    """Declare every parameter of `table` on `node`; return name -> value.
+
+    An override of another type is converted where that is lossless (`start_delay:=4` -> 4.0,
+    `wait_for_nodes:=agent` -> ['agent']), else refused with a NodeError, as is a number below its
+    `minimum`. Overrides naming no parameter of the node are logged as a warning.
+    """
     from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.exceptions import InvalidParameterTypeException
+    from rclpy.parameter import Parameter
 
     values = {}
     for name, p in table.items():
-        node.declare_parameter(name, p.default, ParameterDescriptor(description=p.description))
-        values[name] = node.get_parameter(name).value
+        try:
+            node.declare_parameter(name, p.default, ParameterDescriptor(description=p.description))
+            value = node.get_parameter(name).value
+        except InvalidParameterTypeException:
+            node.declare_parameter(name, p.default,
+                                   ParameterDescriptor(description=p.description, dynamic_typing=True))
+            value = _coerce(name, node.get_parameter(name).value, p.default)
+            node.set_parameters([Parameter(name, value=value)])
+        if p.minimum is not None and value < p.minimum:
+            raise NodeError(f"parameter {name!r} must be at least {p.minimum}, got {value!r}")
+        values[name] = value
+    unknown = sorted(set(getattr(node, "_parameter_overrides", {})) - set(table) - {"use_sim_time"})
+    if unknown:
+        node.get_logger().warning(f"ignoring unknown parameter(s) {unknown}; this node has {sorted(table)}")
     return values
 
 
@@ -41,7 +84,8 @@ def _help(prog: str, description: str, table: dict) -> str:
     lines = [f"usage: {prog} [--help] [--ros-args -p NAME:=VALUE ... --params-file FILE -r FROM:=TO]",
              "", description, "", "parameters (ros__parameters):"]
     for name, p in table.items():
-        lines.append(f"  {name:24s} {p.description} (default: {p.default!r})")
+        bound = "" if p.minimum is None else f", minimum {p.minimum}"
+        lines.append(f"  {name:24s} {p.description} (default: {p.default!r}{bound})")
     return "\n".join(lines)
 
 
