@@ -22,6 +22,9 @@ app = typer.Typer(
 @app.callback()
 def _root() -> None:
     """Non-Markovian reward modelling with MIL, served to RL agents over ROS 2."""
+    from .ros.ament_paths import ensure_ament_prefix_path
+
+    ensure_ament_prefix_path()  # no `source` needed: our packages know where they are installed
 
 
 @app.command()

@@ -61,9 +61,12 @@ class NodeSpec:
 def _prefix(pkg: str) -> Path:
     from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
+    from .ros.ament_paths import ensure_ament_prefix_path
+
+    ensure_ament_prefix_path()
     try:
         return Path(get_package_prefix(pkg))
-    except PackageNotFoundError:
+    except (PackageNotFoundError, OSError):  # OSError: AMENT_PREFIX_PATH empty
         raise LaunchError(f"package {pkg!r} not found in the ament index "
                           f"(AMENT_PREFIX_PATH={os.environ.get('AMENT_PREFIX_PATH', '')!r})") from None
 

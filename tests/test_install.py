@@ -36,3 +36,20 @@ def test_executable_help(name):
     out = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "usage" in out.stdout.lower()
+
+
+def test_cli_and_nodes_need_no_sourcing(ros_domain, tmp_path):
+    """With none of scripts/ros_env.sh's variables (no AMENT_PREFIX_PATH, venv not on PATH), the
+    CLI launches a graph that records a bag and reads it back: the packages find their own
+    install prefix and message definitions."""
+    prefix = Path(get_package_prefix("nmrm_ros"))
+    env = {"HOME": str(tmp_path), "PATH": "/usr/bin:/bin", "ROS_DOMAIN_ID": os.environ["ROS_DOMAIN_ID"],
+           "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    nmrm = str(prefix / "bin" / "nmrm")
+    launch_file = Path(__file__).resolve().parents[1] / "launch_scripts" / "collect.launch.yaml"
+    out = subprocess.run([nmrm, "launch", str(launch_file), "episodes:=2", f"out:={tmp_path / 'bag'}"],
+                         capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
+    assert out.returncode == 0 and "all 4 node(s) exited cleanly" in out.stdout, out.stdout + out.stderr
+    info = subprocess.run([nmrm, "bag", "info", str(tmp_path / "bag")], capture_output=True, text=True,
+                          timeout=60, env=env, cwd=tmp_path)
+    assert info.returncode == 0 and "2 episodes in the bags, 2 used" in info.stdout, info.stdout + info.stderr

@@ -10,9 +10,10 @@ index) or, without ROS, from the source tree's msg_defs/.
 from __future__ import annotations
 
 import json
-import os
 from functools import lru_cache
 from pathlib import Path
+
+from ..ros.ament_paths import share_dir as _share_dir
 
 NMRM_TYPES = ("EnvObservation", "AgentAction", "RewardStep", "TrajectoryReturn", "OracleStep")
 
@@ -30,19 +31,16 @@ _TIME = "int32 sec\nuint32 nanosec\n"
 _SEPARATOR = "=" * 80
 
 
-def _share_dir(package: str) -> Path | None:
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        d = Path(prefix) / "share" / package
-        if prefix and d.is_dir():
-            return d
-    return None
-
-
 def _nmrm_msg_dir() -> Path:
+    """share/nmrm_msgs/msg of the installed messages, else msg_defs/msg of a source checkout."""
     share = _share_dir("nmrm_msgs")
     if share is not None and (share / "msg").is_dir():
         return share / "msg"
-    return Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
+    source = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
+    if source.is_dir():
+        return source
+    raise FileNotFoundError("nmrm_msgs message definitions not found: install the nmrm_msgs package "
+                            "(bash scripts/setup_env.sh, or colcon build) or set AMENT_PREFIX_PATH")
 
 
 def short_name(type_name: str) -> str:

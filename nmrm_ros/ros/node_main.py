@@ -110,6 +110,9 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         print(f"{prog}: unknown arguments {unknown} (node settings are ROS parameters: "
               f"--ros-args -p name:=value)", file=sys.stderr)
         return 2
+    from .ament_paths import ensure_ament_prefix_path
+
+    ensure_ament_prefix_path()  # our config files are found without `source`-ing anything
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
     code = 0
