@@ -54,7 +54,7 @@ def _shim_files() -> list:
 data_files = [
     ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
     (f"share/{PACKAGE}", ["package.xml"]),
-    (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+    (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
     (f"share/{PACKAGE}/launch_scripts", sorted(glob("launch_scripts/*"))),
 ]
 if _building_wheel():

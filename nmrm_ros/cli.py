@@ -23,8 +23,10 @@ app = typer.Typer(
 def _root() -> None:
     """Non-Markovian reward modelling with MIL, served to RL agents over ROS 2."""
     from .ros.ament_paths import ensure_ament_prefix_path
+    from .ros.discovery import use_discovery_profile
 
     ensure_ament_prefix_path()  # no `source` needed: our packages know where they are installed
+    use_discovery_profile()  # for the nodes `nmrm launch` starts and in-process rclpy
 
 
 @app.command()

@@ -196,8 +196,9 @@ def _node(body: dict, variables: dict, path: Path, params_dir: Path) -> NodeSpec
     name = attr("name", exe)
     cmd = [str(executable), *shlex.split(attr("args", "")), "--ros-args",
            "-r", f"__node:={name}"]
-    if "namespace" in body:
-        cmd += ["-r", f"__ns:={attr('namespace')}"]
+    namespace = attr("namespace", "")
+    if namespace:  # '' = the root namespace, as launch_ros treats it
+        cmd += ["-r", f"__ns:={namespace if namespace.startswith('/') else '/' + namespace}"]
     group: dict = {}
 
     def flush() -> None:

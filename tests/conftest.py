@@ -10,6 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from nmrm_ros.ros.discovery import use_discovery_profile
+
+use_discovery_profile()  # the in-process rclpy nodes and the ros2 CLI discover as our nodes do
+
 REPO = Path(__file__).resolve().parents[1]
 _domain_counter = itertools.count()
 

@@ -6,7 +6,10 @@ AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from
 
 `load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations,
 labels from TrajectoryReturn messages (in the same bag, or in labels-only bags given beside it,
-joined by (task, episode)), oracle ground truth from OracleStep if present. Episodes that cannot be
+joined by (source, task, episode)), oracle ground truth from OracleStep if present. An episode's
+**source** is the namespace of its topics: one recorder can record several graphs
+(`/robot1/nmrm/...`, `/robot2/nmrm/...`) and their equal episode numbers do not collide; the
+dataset's `meta["sources"]` and `meta["episodes"]` say where each trajectory came from. Episodes that cannot be
 used are skipped and counted by reason, never used silently:
   missing_steps, conflicting_duplicates, no_final_observation, wrong_state_size, no_label,
   label_length_mismatch.
@@ -24,7 +27,7 @@ import numpy as np
 from ..datasets.trajectories import TrajectoryDataset
 from ..tasks import task_info
 from .reader import BagError, iter_decoded
-from .schemas import TOPIC_TYPES
+from .schemas import TOPIC_TYPES, split_topic
 from .writer import BagWriter
 
 T_OBS = "nmrm_msgs/msg/EnvObservation"
@@ -95,15 +98,28 @@ class BagDatasetReport:
                 f"{self.with_oracle}")
 
 
+def _source(topic: str) -> str:
+    """The namespace of an nmrm topic; '' for a topic not named like ours (e.g. remapped)."""
+    try:
+        return split_topic(topic)[0]
+    except ValueError:
+        return ""
+
+
 def _read(path: Path):
+    """Observations and labels keyed by (source, task, episode), oracle steps by (source, episode);
+    the source is the namespace of the topic ('' for /nmrm/...)."""
     obs, labels, oracle = defaultdict(list), defaultdict(list), defaultdict(dict)
-    for _, type_name, _, m in iter_decoded(path):
+    for topic, type_name, _, m in iter_decoded(path):
+        if type_name not in (T_OBS, T_RET, T_ORC):
+            continue
+        source = _source(topic)
         if type_name == T_OBS:
-            obs[(m.task, int(m.episode))].append(m)
+            obs[(source, m.task, int(m.episode))].append(m)
         elif type_name == T_RET:
-            labels[(m.task, int(m.episode))].append(m)
-        elif type_name == T_ORC:
-            oracle[int(m.episode)][int(m.step)] = m
+            labels[(source, m.task, int(m.episode))].append(m)
+        else:
+            oracle[(source, int(m.episode))][int(m.step)] = m
     return obs, labels, oracle
 
 
@@ -125,7 +141,7 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
                 extra_labels[key].extend(ls)
     if not recordings:
         raise BagError(f"no EnvObservation messages in {', '.join(map(str, paths))}")
-    tasks = {k[0] for _, obs, _, _ in recordings for k in obs}
+    tasks = {k[1] for _, obs, _, _ in recordings for k in obs}
     if task is None:
         if len(tasks) != 1:
             raise BagError(f"the bags hold episodes of several tasks {sorted(tasks)}; choose one")
@@ -140,14 +156,14 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
     report = BagDatasetReport()
     rows = []
     for _, obs, labels, oracle in recordings:
-        for key in sorted(k for k in obs if k[0] == task):
+        for key in sorted(k for k in obs if k[1] == task):
             report.episodes_seen += 1
             row, reason = _episode(obs[key], labels.get(key, []) + extra_labels.get(key, []),
-                                   oracle.get(key[1], {}), info.state_size, labeller, report)
+                                   oracle.get((key[0], key[2]), {}), info.state_size, labeller, report)
             if reason:
                 report.skipped[reason] += 1
             else:
-                rows.append(row)
+                rows.append(row + (key[0],))
     report.episodes_used = len(rows)
     if not rows:
         raise BagError(f"no usable episode of task {task!r}: {report}")
@@ -207,7 +223,7 @@ def _stack(task, rows, state_size, report) -> TrajectoryDataset:
     rewards = np.zeros((n, horizon), np.float64)
     hidden = np.zeros((n, horizon, k), np.float64)
     episodes = np.zeros(n, np.int64)
-    for i, (s, f, g, r, h, e) in enumerate(rows):
+    for i, (s, f, g, r, h, e, _) in enumerate(rows):
         lengths[i] = len(s)
         states[i, : len(s)] = s
         final[i] = f
@@ -217,5 +233,6 @@ def _stack(task, rows, state_size, report) -> TrajectoryDataset:
             rewards[i, : len(s)] = r
             hidden[i, : len(s), : h.shape[1]] = h
     meta = {"source": "bags", "report": str(report), "episodes": episodes.tolist(),
+            "sources": [r[6] for r in rows],
             "oracle_ground_truth": report.with_oracle == n}
     return TrajectoryDataset(task, states, lengths, returns, rewards, hidden, final_states=final, meta=meta)

@@ -26,6 +26,19 @@ TOPIC_TYPES = {
     "/nmrm/oracle_step": "nmrm_msgs/msg/OracleStep",
 }
 
+
+
+def split_topic(name: str) -> tuple[str, str]:
+    """A fully qualified nmrm topic -> (source namespace, type name):
+    '/robot1/nmrm/observation' -> ('/robot1', 'nmrm_msgs/msg/EnvObservation'); '/nmrm/action' ->
+    ('', 'nmrm_msgs/msg/AgentAction'). The namespace is the source id of the graph that published
+    it (episodes of two robots are told apart by it). ValueError for any other topic."""
+    for base, type_name in TOPIC_TYPES.items():
+        if name == base or (name.endswith(base) and name.startswith("/")):
+            return name[: len(name) - len(base)], type_name
+    raise ValueError(f"not an nmrm topic: {name!r} (known: {list(TOPIC_TYPES)}, in any namespace)")
+
+
 _HEADER = "builtin_interfaces/Time stamp\nstring frame_id\n"
 _TIME = "int32 sec\nuint32 nanosec\n"
 _SEPARATOR = "=" * 80

@@ -15,7 +15,7 @@ import time
 
 from rclpy.node import Node
 
-from ..bags.schemas import TOPIC_TYPES
+from ..bags.schemas import TOPIC_TYPES, split_topic
 from ..bags.writer import BagWriter
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, run_node)
@@ -24,7 +24,9 @@ from ..ros.topics import STEP_QOS
 PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "output": Param("", "bag directory to create (default: bags/recording_<UTC time>)"),
-    "topics": Param(list(TOPIC_TYPES), "topics to record (nmrm_msgs types)"),
+    "topics": Param(list(TOPIC_TYPES), "topics to record: nmrm topics, in any namespace"),
+    "namespaces": Param([""], "record `topics` under each of these namespaces (e.g. [/robot1, /robot2]); "
+                              "'' = as given"),
     "flush_period": Param(1.0, "seconds between flushes of completed chunks to disk", 0.001),
     "chunk_size": Param(262144, "MCAP chunk size in bytes (smaller: less lost on a hard kill)", 1024),
 }
@@ -44,18 +46,20 @@ class RecorderNode(Node):
         super().__init__("recorder")
         p = declare_parameters(self, PARAMETERS)
         output = p["output"] or time.strftime("bags/recording_%Y%m%d_%H%M%S", time.gmtime())
-        topics = list(p["topics"])
-        unknown = [t for t in topics if self.resolve_topic_name(t) not in TOPIC_TYPES]
-        if unknown:
-            raise NodeError(f"cannot record {unknown}: known topics are {list(TOPIC_TYPES)}")
+        topics = [ns.rstrip("/") + "/" + t.lstrip("/") if ns else t
+                  for ns in (p["namespaces"] or [""]) for t in p["topics"]]
+        resolved = {}
+        for t in topics:
+            try:
+                resolved[t] = (self.resolve_topic_name(t), split_topic(self.resolve_topic_name(t))[1])
+            except ValueError as exc:
+                raise NodeError(f"cannot record {t!r}: {exc}") from None
         try:
             self.bag = BagWriter(output, chunk_size=int(p["chunk_size"]))
         except (FileExistsError, OSError) as exc:
             raise NodeError(str(exc)) from None
         self.subs = []
-        for topic in topics:
-            name = self.resolve_topic_name(topic)
-            type_name = TOPIC_TYPES[name]
+        for topic, (name, type_name) in resolved.items():
             self.bag.add_topic(name, type_name)
             cb = (lambda data, n=name, t=type_name:
                   self.on_message(n, t, data))
@@ -63,7 +67,7 @@ class RecorderNode(Node):
         self.create_timer(float(p["flush_period"]), self.bag.flush)
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.subs)
-        self.get_logger().info(f"recording {len(topics)} topic(s) to {output}")
+        self.get_logger().info(f"recording {len(resolved)} topic(s) to {output}")
 
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         self.bag.write_cdr(topic, type_name, data, self.get_clock().now().nanoseconds)

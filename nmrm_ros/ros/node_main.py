@@ -111,8 +111,10 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
               f"--ros-args -p name:=value)", file=sys.stderr)
         return 2
     from .ament_paths import ensure_ament_prefix_path
+    from .discovery import use_discovery_profile
 
     ensure_ament_prefix_path()  # our config files are found without `source`-ing anything
+    use_discovery_profile()  # Fast DDS: re-announce every 0.25 s (see discovery.py)
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
     code = 0
