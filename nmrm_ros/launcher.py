@@ -23,8 +23,10 @@ Substitutions: $(var NAME), $(find-pkg-share PKG), $(find-pkg-prefix PKG), $(env
 Anything else in the file is an error (not silently ignored). Extras over `ros2 launch`: the
 launcher exits non-zero naming the node when one dies (ros2 launch exits 0), and stops the others.
 
-Process handling: each node's output is prefixed with its name. Ctrl-C / SIGTERM are forwarded as
-SIGINT to every node (SIGTERM after `grace` seconds, SIGKILL after twice that). When a node exits
+Process handling: each node's output is prefixed with its name. Ctrl-C / SIGTERM / SIGHUP are
+forwarded as SIGINT to every node (SIGTERM after `grace` seconds, SIGKILL after twice that) and the
+launcher exits with 128 + the signal number (an interrupted run is not a success). Each node gets
+SIGTERM if the launcher itself dies, even by SIGKILL (Linux parent-death signal). When a node exits
 with a non-zero code, the others are stopped and the launcher exits with 1 and names the node.
 When every node has exited with 0, the launcher exits with 0.
 """
@@ -229,8 +231,28 @@ def _pump(stream, name: str, out) -> None:
         out.flush()
 
 
+def _die_with_parent() -> None:
+    """In the child before exec: get SIGTERM when the launcher dies, even by SIGKILL (Linux
+    prctl PR_SET_PDEATHSIG; kept across exec). Elsewhere a no-op."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+        if os.getppid() == 1:  # the launcher died before prctl took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 def run(nodes: list, grace: float = 10.0, out=None) -> int:
-    """Start every node, forward signals, and wait; returns the launcher's exit code."""
+    """Start every node, forward signals, and wait; returns the launcher's exit code.
+
+    0 when every node ended by itself with 0; 1 when a node failed; 128 + signal number when the
+    run was interrupted (Ctrl-C: 130, SIGTERM: 143, SIGHUP: 129), as a shell reports it."""
     out = out or sys.stdout
     procs: list = []
     stopping = {"why": None}
@@ -249,12 +271,12 @@ def run(nodes: list, grace: float = 10.0, out=None) -> int:
             out.write(f"[nmrm launch] {stopping['why']}: stopping {len(procs)} node(s)\n")
         stop_all()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS}
     threads = []
     try:
         for spec in nodes:
             p = subprocess.Popen(spec.cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                 start_new_session=True)
+                                 start_new_session=True, preexec_fn=_die_with_parent)
             procs.append((spec.name, p))
             t = threading.Thread(target=_pump, args=(p.stdout, spec.name, out), daemon=True)
             t.start()
@@ -286,6 +308,11 @@ def run(nodes: list, grace: float = 10.0, out=None) -> int:
         if failed is not None:
             out.write(f"[nmrm launch] failed: node '{failed[0]}' exited with code {failed[1]}\n")
             return 1
+        if stopping["why"] not in (None, "failure"):
+            codes = ", ".join(f"{name} {p.returncode}" for name, p in procs)
+            out.write(f"[nmrm launch] interrupted by {stopping['why']}: {len(procs)} node(s) stopped "
+                      f"(exit codes: {codes})\n")
+            return 128 + int(signal.Signals[stopping["why"]])
         out.write(f"[nmrm launch] all {len(procs)} node(s) exited cleanly\n")
         return 0
     finally:

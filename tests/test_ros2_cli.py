@@ -105,6 +105,8 @@ def test_ros2_param_and_topic_against_a_running_graph(ros_domain):
         assert got.stdout.strip() == "Double value is: 4.0", got.stdout + got.stderr
         got = _ros2("param", "get", "--no-daemon", "--spin-time", "5", "/reward_model", "mode")
         assert got.stdout.strip() == "String value is: oracle", got.stdout + got.stderr
+        described = _ros2("param", "describe", "--no-daemon", "--spin-time", "5", "/env_sim", "episodes")
+        assert "Min value: 0" in described.stdout, described.stdout + described.stderr
         nodes = _ros2("node", "list", "--no-daemon", "--spin-time", "5").stdout.split()
         assert {"/env_sim", "/labeller_oracle", "/reward_model", "/agent"} <= set(nodes), nodes
     finally:

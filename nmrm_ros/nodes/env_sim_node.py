@@ -9,7 +9,11 @@ for ever) the node exits with code 0.
 Actions for anything but the awaited (episode, step), of the wrong size, NaN/inf, or outside the
 action space are dropped with a counted warning, never stepped. If no valid action arrives within
 `action_timeout` s the observation is published again (the agent re-sends the same action for a
-repeated observation); after `max_retries` repeats the node gives up and exits with code 1.
+repeated observation); after `max_retries` repeats the episode is **abandoned** (counted, with the
+step it stopped at) and the next one starts at step 0 — the point where every consumer that broke
+off (a bad message, a restarted node) joins again. That first observation is re-published every
+`action_timeout` s for up to `startup_timeout` s, so a node that is still restarting joins it. After `max_abandoned` abandoned episodes in a
+row the node gives up and exits with code 1. Abandoned episodes count towards `episodes`.
 Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
 them those of every node named in `wait_for_nodes`, match its observation topic and an action
 publisher is matched (up to `startup_timeout` s), then `start_delay` s more (time for the other
@@ -35,7 +39,8 @@ PARAMETERS = {
     "episodes": Param(1, "number of episodes to run, 0 = for ever", 0),
     "continuous": Param(False, "continuous-action variant of the navigation tasks"),
     "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation", 0.001),
-    "max_retries": Param(3, "re-publications of one observation before giving up (exit 1)", 0),
+    "max_retries": Param(3, "re-publications of one observation before abandoning the episode", 0),
+    "max_abandoned": Param(5, "abandoned episodes in a row before giving up (exit 1)", 1),
     "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting", 0),
     "wait_for_nodes": Param([""], "names of nodes whose observation subscriptions to wait for"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher", 0.001),
@@ -57,6 +62,11 @@ class EnvSimNode(Node):
         self.episodes = int(p["episodes"])
         self.action_timeout = float(p["action_timeout"])
         self.max_retries = int(p["max_retries"])
+        self.max_abandoned = int(p["max_abandoned"])
+        self.abandoned = 0  # episodes abandoned in all
+        self.abandoned_in_a_row = 0
+        self.abandoned_at = 0.0
+        self.startup_timeout = float(p["startup_timeout"])
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_for_nodes = {n for n in p["wait_for_nodes"] if n}
         self.startup_deadline = time.monotonic() + float(p["startup_timeout"])
@@ -101,15 +111,36 @@ class EnvSimNode(Node):
                 self.exit_code = 1
             return
         if self.state is not None and now - self.sent_at > self.action_timeout:
-            if self.retries >= self.max_retries:
-                self.get_logger().error(f"no valid action for episode {self.episode} step "
-                                        f"{self.step_index} after {self.retries} re-publications; giving up")
-                self.exit_code = 1
+            rejoining = (self.step_index == 0 and self.abandoned_in_a_row > 0
+                         and now - self.abandoned_at < self.startup_timeout)
+            if self.retries >= self.max_retries and not rejoining:
+                self.abandon_episode()
                 return
             self.retries += 1
-            self.get_logger().warning(f"action timeout at episode {self.episode} step {self.step_index}; "
-                                      f"re-publishing the observation ({self.retries}/{self.max_retries})")
+            self.get_logger().warning(
+                f"action timeout at episode {self.episode} step {self.step_index}; re-publishing the "
+                + (f"observation ({self.retries}/{self.max_retries})" if not rejoining else
+                   f"first observation after an abandoned episode, for a restarted node to join "
+                   f"(up to startup_timeout, {now - self.abandoned_at:.0f}/{self.startup_timeout:.0f} s)"))
             self.publish_observation(False, False)
+
+    def abandon_episode(self) -> None:
+        """No valid action after `max_retries` re-publications: count the episode as abandoned and
+        start the next one (or give up after `max_abandoned` in a row)."""
+        self.abandoned += 1
+        self.abandoned_in_a_row += 1
+        self.abandoned_at = time.monotonic()
+        self.retries = 0
+        if self.abandoned_in_a_row >= self.max_abandoned:
+            self.get_logger().error(f"no valid action for episode {self.episode} step {self.step_index}; "
+                                    f"{self.abandoned_in_a_row} episodes abandoned in a row; giving up")
+            self.state = None
+            self.exit_code = 1
+            return
+        self.get_logger().warning(f"episode {self.episode} abandoned at step {self.step_index}: no valid "
+                                  f"action after {self.max_retries} re-publications ({self.abandoned} "
+                                  f"abandoned so far); starting the next episode")
+        self.start_episode()
 
     def start_episode(self) -> None:
         self.episode += 1
@@ -117,7 +148,8 @@ class EnvSimNode(Node):
             seconds = time.monotonic() - self.t_start
             self.get_logger().info(f"done: {self.episode} episodes, {self.steps_total} steps in "
                                    f"{seconds:.2f} s ({self.steps_total / max(seconds, 1e-9):.0f} steps/s), "
-                                   f"{self.dropped} action(s) dropped")
+                                   f"{self.dropped} action(s) dropped, {self.abandoned} episode(s) "
+                                   f"abandoned (no valid action after {self.max_retries} re-publications)")
             self.state = None
             self.exit_code = 0
             return
@@ -160,6 +192,7 @@ class EnvSimNode(Node):
         self.state = obs
         if terminated or truncated:
             self.publish_observation(bool(terminated), bool(truncated))
+            self.abandoned_in_a_row = 0
             self.start_episode()
         else:
             self.publish_observation(False, False)

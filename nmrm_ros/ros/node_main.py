@@ -50,6 +50,34 @@ def _coerce(name: str, given, default):
     raise NodeError(f"parameter {name!r} must be {_type_name(default)}, got {_type_name(given)} {given!r}")
 
 
+def _descriptor(p: Param, dynamic_typing: bool = False):
+    """The ROS ParameterDescriptor of `p`: description and, for a minimum, its range (shown by
+    `ros2 param describe`, enforced by rclpy on declare and on set)."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    d = ParameterDescriptor(description=p.description, dynamic_typing=dynamic_typing)
+    if p.minimum is not None and not dynamic_typing:
+        if isinstance(p.default, float):
+            d.floating_point_range = [FloatingPointRange(from_value=float(p.minimum), to_value=1e300, step=0.0)]
+        else:
+            d.integer_range = [IntegerRange(from_value=int(p.minimum), to_value=2**63 - 1, step=0)]
+    return d
+
+
+def _override(node, name: str):
+    param = getattr(node, "_parameter_overrides", {}).get(name)
+    return None if param is None else param.value
+
+
+def _below_minimum(name: str, p: Param, value) -> str:
+    return f"parameter {name!r} must be at least {p.minimum}, got {value!r}"
+
+
+def _check_minimum(name: str, value, p: Param) -> None:
+    if p.minimum is not None and value < p.minimum:
+        raise NodeError(_below_minimum(name, p, value))
+
+
 def declare_parameters(node, table: dict) -> dict:
     """Declare every parameter of `table` on `node`; return name -> value.
 
@@ -57,22 +85,22 @@ def declare_parameters(node, table: dict) -> dict:
     `wait_for_nodes:=agent` -> ['agent']), else refused with a NodeError, as is a number below its
     `minimum`. Overrides naming no parameter of the node are logged as a warning.
     """
-    from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.exceptions import InvalidParameterTypeException
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.parameter import Parameter
 
     values = {}
     for name, p in table.items():
         try:
-            node.declare_parameter(name, p.default, ParameterDescriptor(description=p.description))
-            value = node.get_parameter(name).value
-        except InvalidParameterTypeException:
-            node.declare_parameter(name, p.default,
-                                   ParameterDescriptor(description=p.description, dynamic_typing=True))
-            value = _coerce(name, node.get_parameter(name).value, p.default)
-            node.set_parameters([Parameter(name, value=value)])
-        if p.minimum is not None and value < p.minimum:
-            raise NodeError(f"parameter {name!r} must be at least {p.minimum}, got {value!r}")
+            try:
+                node.declare_parameter(name, p.default, _descriptor(p))
+                value = node.get_parameter(name).value
+            except InvalidParameterTypeException:
+                node.declare_parameter(name, p.default, _descriptor(p, dynamic_typing=True))
+                value = _coerce(name, node.get_parameter(name).value, p.default)
+                node.set_parameters([Parameter(name, value=value)])
+                _check_minimum(name, value, p)
+        except InvalidParameterValueException:  # below the descriptor's range
+            raise NodeError(_below_minimum(name, p, _override(node, name))) from None
         values[name] = value
     unknown = sorted(set(getattr(node, "_parameter_overrides", {})) - set(table) - {"use_sim_time"})
     if unknown:
