@@ -186,14 +186,16 @@ app.add_typer(bag_app, name="bag")
 @bag_app.command("info")
 def bag_info(path: Path = typer.Argument(..., help="bag directory or .mcap file")) -> None:
     """Topics, types and message counts of a bag, and its episodes."""
-    from .bags import BagError, bag_summary, load_bag_dataset
+    from .bags import BagError, bag_summary, iter_raw, load_bag_dataset
 
     try:
         summary = bag_summary(path)
+        for topic, (type_name, count) in summary.items():
+            typer.echo(f"{topic:28s} {type_name:34s} {count:8d}")
+        sum(1 for _ in iter_raw(path))  # every chunk read and its CRC checked
     except BagError as exc:
-        raise typer.BadParameter(str(exc)) from None
-    for topic, (type_name, count) in summary.items():
-        typer.echo(f"{topic:28s} {type_name:34s} {count:8d}")
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
     try:
         _, report = load_bag_dataset([path])
         typer.echo(f"episodes: {report}")
@@ -203,7 +205,7 @@ def bag_info(path: Path = typer.Argument(..., help="bag directory or .mcap file"
 
 @bag_app.command("repair")
 def bag_repair(path: Path = typer.Argument(..., help="bag directory (or .mcap) of a killed recording")) -> None:
-    """Make a bag readable again after its recorder was killed: keeps every complete chunk."""
+    """Rebuild a damaged or killed recording from every intact chunk (original kept beside it)."""
     from .bags import BagError, load_bag_dataset, repair_bag
 
     try:
@@ -211,8 +213,10 @@ def bag_repair(path: Path = typer.Argument(..., help="bag directory (or .mcap) o
     except BagError as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(f"repaired {report.path}: {report.messages} messages recovered "
-               f"({', '.join(f'{t} {n}' for t, n in report.topics.items())}); "
-               f"damage: {report.damaged or 'none found'}; original kept as {report.backup}")
+               f"({', '.join(f'{t} {n}' for t, n in report.topics.items())}) from "
+               f"{report.chunks_kept} intact chunk(s); lost: {report.chunks_lost} damaged chunk(s)"
+               f"{f', {report.messages_without_channel} message(s) of unknown channels' if report.messages_without_channel else ''}; "
+               f"damage: {report.damaged}; original kept as {report.backup}")
     try:
         _, episodes = load_bag_dataset([report.path])
         typer.echo(f"episodes: {episodes}")

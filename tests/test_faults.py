@@ -8,6 +8,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from graph_helpers import finish, launch
@@ -161,3 +162,84 @@ def test_a_killed_and_restarted_reward_model_costs_one_episode(ros_domain, tmp_p
         assert len(labels) >= episodes - 1, sorted(labels)
     finally:
         cap.close()
+
+
+# -- no silent corruption, no destroyed data -----------------------------------------------------
+def _bag_with_chunks(tmp_path, n=60):
+    from nmrm_ros.bags import BagWriter, write_dataset_bag
+    from nmrm_ros.datasets import generate_screened
+
+    ds = generate_screened("key", n, seed=0)
+    path = tmp_path / "bag"
+    write_dataset_bag(ds, path)
+    return ds, path, next(path.glob("*.mcap"))
+
+
+def _chunk_offsets(file):
+    from nmrm_ros.bags.repair import scan_chunks
+
+    return [c.offset for c in scan_chunks(file).chunks]
+
+
+def _flip(file, offset):
+    data = bytearray(file.read_bytes())
+    data[offset] ^= 0xFF
+    file.write_bytes(bytes(data))
+
+
+def _nmrm(*args):
+    from graph_helpers import executable
+
+    return subprocess.run([executable("nmrm"), *args], capture_output=True, text=True, timeout=300)
+
+
+def test_a_flipped_byte_is_refused_by_train_and_bag_info(tmp_path):
+    """Finding 2: one flipped byte in an .mcap and `nmrm train` exited 0 having trained on altered
+    data; `nmrm bag info` exited 0 printing "cannot decode"."""
+    ds, path, file = _bag_with_chunks(tmp_path)
+    offsets = _chunk_offsets(file)
+    assert len(offsets) >= 3
+    _flip(file, offsets[1] + 200)  # inside the compressed data of the second chunk
+    info = _nmrm("bag", "info", str(path))
+    assert info.returncode == 1, info.stdout + info.stderr
+    err = info.stderr.strip().splitlines()
+    assert len(err) == 1 and "damaged" in err[0] and f"chunk at byte {offsets[1]}" in err[0], info.stderr
+    train = _nmrm("train", "--bag", str(path), "--epochs", "1", "--out", str(tmp_path / "m"))
+    assert train.returncode != 0 and "damaged" in train.stdout + train.stderr
+    assert "Traceback" not in train.stdout + train.stderr
+    assert not (tmp_path / "m.pt").exists()
+
+
+def test_repair_keeps_every_intact_chunk_after_a_damaged_one(tmp_path):
+    """Finding 3: repair kept only the chunks before the first damaged one (56 of 200 episodes)."""
+    from nmrm_ros.bags import load_bag_dataset, repair_bag
+
+    ds, path, file = _bag_with_chunks(tmp_path)
+    offsets = _chunk_offsets(file)
+    _flip(file, offsets[1] + 200)
+    report = repair_bag(path)
+    assert report.chunks_lost == 1 and report.chunks_kept == len(offsets) - 1, report
+    back, rep = load_bag_dataset([path])
+    # only the episodes with messages in the damaged chunk are lost (one chunk's share, plus the
+    # two it shares with its neighbours); the others are the originals
+    assert rep.episodes_used >= len(ds) - len(ds) // len(offsets) - 2, (rep, len(offsets))
+    assert max(back.meta["episodes"]) == len(ds) - 1  # chunks after the damage are back
+    for i, e in enumerate(back.meta["episodes"]):
+        np.testing.assert_array_equal(back.states[i], ds.states[e])
+    assert (path / (file.name + ".damaged")).is_file() and (path / "metadata.yaml.damaged").is_file()
+
+
+def test_a_failed_repair_leaves_the_bag_as_it_was(tmp_path):
+    """Finding 3: a failed repair had already renamed the .mcap and deleted metadata.yaml."""
+    from nmrm_ros.bags import BagError, repair_bag
+
+    _, path, file = _bag_with_chunks(tmp_path, 10)
+    data = bytearray(file.read_bytes())
+    for off in _chunk_offsets(file):  # every chunk damaged: nothing to rebuild from
+        data[off + 200] ^= 0xFF
+    file.write_bytes(bytes(data))
+    before = {p.name: p.read_bytes() for p in path.iterdir()}
+    with pytest.raises(BagError, match="left as it was"):
+        repair_bag(path)
+    assert {p.name: p.read_bytes() for p in path.iterdir()} == before
+    assert not path.with_name(path.name + ".repairing").exists()

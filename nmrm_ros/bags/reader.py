@@ -1,7 +1,8 @@
 """Reading bags: a rosbag2 directory (metadata.yaml + .mcap files) or a bare .mcap file.
 
-Every failure to read (missing file, not an MCAP, truncated, undecodable message) raises
-`BagError` with the path and what to do, never a bare library exception.
+Every failure to read (missing file, not an MCAP, truncated, a chunk whose CRC or compression is
+damaged, undecodable message) raises `BagError` with the path, where the damage is and what to do,
+never a bare library exception. Chunk CRCs are validated on every read.
 """
 
 from __future__ import annotations
@@ -58,14 +59,32 @@ def bag_files(path: str | Path) -> list:
 
 
 def _iter(path: str | Path, topics: list | None):
-    """(schema, channel, message) records of every file of a bag; errors -> BagError."""
+    """(schema, channel, message) records of every file of a bag, chunk CRCs checked; any damage
+    -> BagError naming the file, the damaged chunk(s) and how many messages were read before."""
     for file in bag_files(path):
+        n = 0
         try:
             with open(file, "rb") as f:
-                yield from make_reader(f).iter_messages(topics=topics, log_time_order=False)
-        except (McapError, EOFError, ValueError, OSError, AssertionError) as exc:
-            raise BagError(f"{file}: cannot read ({type(exc).__name__}: {exc}); "
-                           + REPAIR_HINT.format(path=path)) from None
+                for item in make_reader(f, validate_crcs=True).iter_messages(topics=topics,
+                                                                             log_time_order=False):
+                    n += 1
+                    yield item
+        except Exception as exc:  # noqa: BLE001 - mcap, zstandard, lz4, struct...: the file is damaged
+            raise BagError(_damage(file, path, exc, n)) from None
+
+
+def _damage(file: Path, path, exc: Exception, read: int) -> str:
+    """One line: what is damaged in `file` and where, and what to do."""
+    from .repair import scan_chunks
+
+    what = f"{type(exc).__name__}: {str(exc).strip()[:160]}"
+    try:
+        where = scan_chunks(file).describe()
+    except Exception:  # noqa: BLE001 - the scan adds detail only
+        where = "none found"
+    return (f"{file}: damaged ({where if where != 'none found' else what}); "
+            f"{read} message(s) read before it, none used; `nmrm bag repair {path}` rebuilds the bag "
+            f"from every intact chunk")
 
 
 def iter_raw(path: str | Path, topics: list | None = None) -> Iterator[RawMessage]:

@@ -6,8 +6,8 @@ Foxglove, the `mcap` CLI and the `rosbags` library read it. Messages go in eithe
 (`write_cdr`: what a raw rclpy subscription delivers, no re-encoding) or as plain dicts
 (`write_dict`: encoded by mcap_ros2's CDR encoder from the schema; no ROS needed).
 
-`flush()` pushes completed chunks to disk: after a hard kill, everything up to the last completed
-chunk is recoverable with `nmrm bag repair`.
+`flush()` ends the chunk in progress and pushes the file to disk: after a hard kill, everything
+written before the last flush is recoverable with `nmrm bag repair`.
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ class BagWriter:
         self._encoders: dict = {}
         self.counts: dict = {}
         self._sequence = 0
+        self._flushed_at = 0  # self._sequence at the last flush
         self.start_ns: int | None = None
         self.end_ns = 0
         self.closed = False
@@ -101,10 +102,17 @@ class BagWriter:
             self._encoders[type_name] = serialize_dynamic(type_name, message_definition(type_name))[type_name]
         return self._encoders[type_name](message)
 
-    def flush(self) -> None:
-        """Push what the MCAP writer has handed over (completed chunks) to the disk."""
+    def flush(self, finish_chunk: bool = True) -> None:
+        """Push the bag to the disk (fsync): completed chunks, and with `finish_chunk` the chunk in
+        progress too (ended early, so nothing written so far is lost on a hard kill; smaller
+        chunks compress a little less). A no-op when nothing was written since the last flush."""
+        if self._sequence == self._flushed_at:
+            return
+        if finish_chunk:
+            self._writer.flush()
         self._file.flush()
         os.fsync(self._file.fileno())
+        self._flushed_at = self._sequence
 
     # -- closing ---------------------------------------------------------------------------------
     def metadata(self) -> dict:

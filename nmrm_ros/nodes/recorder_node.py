@@ -2,9 +2,9 @@
 
 The bag is a directory (`output`) with metadata.yaml and one .mcap (ros2 profile, zstd chunks,
 schemas embedded): `ros2 bag info/play`, Foxglove, the `mcap` CLI and `rosbags` read it. Each
-message is logged at its receive time. Ctrl-C / SIGTERM close the bag cleanly. Completed chunks
-are flushed to disk every `flush_period` s, so after a hard kill `nmrm bag repair OUTPUT`
-recovers all but the last chunk. On close it logs how many messages it wrote and its own write
+message is logged at its receive time. Ctrl-C / SIGTERM close the bag cleanly. Every
+`flush_period` s the chunk in progress is ended and the file flushed to disk, so after a hard kill
+`nmrm bag repair OUTPUT` recovers everything received up to `flush_period` s before it. On close it logs how many messages it wrote and its own write
 rate (messages over the time from its first to its last write).
 """
 
@@ -27,7 +27,7 @@ PARAMETERS = {
     "topics": Param(list(TOPIC_TYPES), "topics to record: nmrm topics, in any namespace"),
     "namespaces": Param([""], "record `topics` under each of these namespaces (e.g. [/robot1, /robot2]); "
                               "'' = as given"),
-    "flush_period": Param(1.0, "seconds between flushes of completed chunks to disk", 0.001),
+    "flush_period": Param(1.0, "seconds between flushes to disk (the chunk in progress is ended)", 0.001),
     "chunk_size": Param(262144, "MCAP chunk size in bytes (smaller: less lost on a hard kill)", 1024),
 }
 
