@@ -40,9 +40,9 @@ def launch_dir() -> Path:
     here = repo_dir("launch_scripts")
     if here is not None:
         return here
-    from ament_index_python.packages import get_package_share_directory
+    from .ros.ament_paths import require_share_dir
 
-    return Path(get_package_share_directory("nmrm_ros")) / "launch_scripts"
+    return require_share_dir("nmrm_ros") / "launch_scripts"
 
 
 def _launch(name: str, arguments: dict) -> None:

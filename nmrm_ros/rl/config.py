@@ -17,9 +17,9 @@ def config_path() -> Path:
     """config/rl.yaml of the source tree, else of the installed share directory."""
     if CONFIG_FILE.is_file():
         return CONFIG_FILE
-    from ament_index_python.packages import get_package_share_directory
+    from ..ros.ament_paths import require_share_dir
 
-    return Path(get_package_share_directory("nmrm_ros")) / "config" / "rl.yaml"
+    return require_share_dir("nmrm_ros") / "config" / "rl.yaml"
 
 
 def algorithm_name(task: str, continuous: bool = False) -> str:

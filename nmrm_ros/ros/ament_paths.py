@@ -54,3 +54,12 @@ def share_dir(package: str) -> Path | None:
         if prefix and d.is_dir():
             return d
     return None
+
+
+def require_share_dir(package: str) -> Path:
+    """`share_dir(package)`, or a FileNotFoundError saying how to install it."""
+    share = share_dir(package)
+    if share is None:
+        raise FileNotFoundError(f"share/{package} not found: install the package (bash scripts/setup_env.sh, "
+                                f"or colcon build and source install/setup.bash)")
+    return share
