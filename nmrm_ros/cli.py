@@ -457,8 +457,22 @@ def _dataset_summary(ds) -> str:
 
 
 def main() -> None:
-    """Console-script entry point."""
-    app()
+    """Console-script entry point. Errors (bad options, bad input files) are one line on stderr,
+    `nmrm: error: ...`, exit code 2; `--help` and no arguments print the help."""
+    from typer._click import exceptions as click_errors  # typer vendors click
+
+    try:
+        code = app(standalone_mode=False)
+    except click_errors.NoArgsIsHelpError:  # the help was printed already
+        raise SystemExit(0) from None
+    except click_errors.ClickException as exc:
+        where = f"{exc.ctx.command_path}: " if getattr(exc, "ctx", None) is not None else "nmrm: "
+        typer.echo(f"{where}error: {' '.join(exc.format_message().split())}", err=True)
+        raise SystemExit(exc.exit_code) from None
+    except typer.Abort:
+        typer.echo("nmrm: interrupted", err=True)
+        raise SystemExit(130) from None
+    raise SystemExit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":

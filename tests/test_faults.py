@@ -243,3 +243,58 @@ def test_a_failed_repair_leaves_the_bag_as_it_was(tmp_path):
         repair_bag(path)
     assert {p.name: p.read_bytes() for p in path.iterdir()} == before
     assert not path.with_name(path.name + ".repairing").exists()
+
+
+# -- checkpoints ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def two_checkpoints(tmp_path_factory):
+    from nmrm_ros.datasets import generate_screened
+    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil.pipeline import train_and_evaluate
+
+    out = tmp_path_factory.mktemp("ckpts")
+    paths = {}
+    for task in ("timer", "key"):
+        ds = generate_screened(task, 100, seed=0)
+        paths[task] = train_and_evaluate(ds, "csc_lstm", load_train_config(task, max_epochs=1),
+                                         out=out / task, progress=False).checkpoint
+    return paths
+
+
+def test_a_pt_and_a_json_from_different_trainings_are_refused(two_checkpoints, tmp_path):
+    """Finding 7: a Timer .pt next to a Key .json was evaluated as a Key model, exit 0."""
+    import shutil
+
+    from nmrm_ros.mil import load_checkpoint
+    from nmrm_ros.mil.checkpoint import CheckpointError, checkpoint_paths
+
+    timer_pt, _ = checkpoint_paths(two_checkpoints["timer"])
+    _, key_json = checkpoint_paths(two_checkpoints["key"])
+    shutil.copy(timer_pt, tmp_path / "mixed.pt")
+    shutil.copy(key_json, tmp_path / "mixed.json")
+    with pytest.raises(CheckpointError, match="do not belong to"):
+        load_checkpoint(tmp_path / "mixed")
+    result = _nmrm("evaluate", "--checkpoint", str(tmp_path / "mixed"))
+    assert result.returncode != 0 and "do not belong to" in result.stdout + result.stderr
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+def test_edited_normalisation_and_empty_weights_are_refused(two_checkpoints, tmp_path):
+    import json
+    import shutil
+
+    from nmrm_ros.mil import load_checkpoint
+    from nmrm_ros.mil.checkpoint import CheckpointError, checkpoint_paths
+
+    pt, js = checkpoint_paths(two_checkpoints["key"])
+    shutil.copy(pt, tmp_path / "k.pt")
+    record = json.loads(js.read_text())
+    record["normalisation"]["scale"] = [2.0 * v for v in record["normalisation"]["scale"]]
+    (tmp_path / "k.json").write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match="normalisation differs"):
+        load_checkpoint(tmp_path / "k")
+    (tmp_path / "e.pt").write_bytes(b"")
+    record.pop("weights_sha256")
+    (tmp_path / "e.json").write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match="the file is empty"):
+        load_checkpoint(tmp_path / "e")

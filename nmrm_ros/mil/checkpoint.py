@@ -2,12 +2,16 @@
 metadata (`<name>.json`: architecture and sizes, task, normalisation, training config, seed,
 metrics, package version). An ensemble checkpoint (`nmrm train --ensemble K`) holds all K members'
 stacked weights and says so in its metadata ("ensemble": members, seeds, serving member);
-`load_checkpoint` then returns a `MILEnsemble`. A checkpoint that does not match what the caller
-asks for, or whose weights do not match its own metadata, is refused with a clear error."""
+`load_checkpoint` then returns a `MILEnsemble`. The .json carries the SHA-256 of its .pt, so a
+.pt and a .json from different trainings are refused; the normalisation lives in the weights (the
+model's buffers) and the .json copy must agree with it. A checkpoint that does not match what the
+caller asks for, or whose weights do not match its own metadata, is refused with a clear error."""
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 from pathlib import Path
 
 import torch
@@ -38,14 +42,21 @@ def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task:
     record = {
         "format": FORMAT,
         "package_version": __version__,
+        "weights_sha256": _sha256(weights),
         "task": task,
         "model": model.config.to_dict(),
         "normalisation": {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
                           "return_scale": float(model.return_scale)},
         **meta,
     }
-    info.write_text(json.dumps(record, indent=2))
+    tmp = info.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(record, indent=2))
+    os.replace(tmp, info)  # the metadata appears whole, after its weights
     return weights
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def load_checkpoint(path: str | Path, architecture: str | None = None,
@@ -76,10 +87,18 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
     if task is not None and record.get("task") != task:
         raise CheckpointError(f"checkpoint {weights} was trained on task {record.get('task')!r}, "
                               f"not {task!r}")
+    expected = record.get("weights_sha256")
+    if expected is not None and _sha256(weights) != expected:
+        raise CheckpointError(f"checkpoint weights {weights} do not belong to {info} (SHA-256 "
+                              f"{_sha256(weights)[:12]}..., the metadata expects {expected[:12]}...): "
+                              f"a .pt and a .json from different trainings?")
+    if weights.stat().st_size == 0:
+        raise CheckpointError(f"cannot read checkpoint weights {weights}: the file is empty")
     try:
         state = torch.load(weights, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling/format failure is a bad checkpoint
-        raise CheckpointError(f"cannot read checkpoint weights {weights}: {exc}") from None
+        raise CheckpointError(f"cannot read checkpoint weights {weights}: "
+                              f"{type(exc).__name__}: {str(exc).strip() or 'unreadable'}") from None
     ensemble = record.get("ensemble")
     try:
         if ensemble is not None:
@@ -95,4 +114,17 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
         raise CheckpointError(f"checkpoint weights {weights} do not match their metadata "
                               f"({what}{config.architecture}, input {config.input_size}): "
                               f"{str(exc).splitlines()[0]}") from None
+    norm = record.get("normalisation")
+    if norm is not None:
+        ours = {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
+                "return_scale": float(model.return_scale)}
+        try:
+            same = all(torch.allclose(torch.tensor(norm[k], dtype=torch.float64),
+                                      torch.tensor(ours[k], dtype=torch.float64), rtol=1e-5, atol=1e-7)
+                       for k in ours)
+        except (KeyError, TypeError, RuntimeError, ValueError):
+            same = False
+        if not same:
+            raise CheckpointError(f"{info}: its normalisation differs from the one in the weights "
+                                  f"{weights} (the weights hold the one used; was the .json edited?)")
     return model.eval(), record
