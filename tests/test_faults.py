@@ -298,3 +298,32 @@ def test_edited_normalisation_and_empty_weights_are_refused(two_checkpoints, tmp
     (tmp_path / "e.json").write_text(json.dumps(record))
     with pytest.raises(CheckpointError, match="the file is empty"):
         load_checkpoint(tmp_path / "e")
+
+
+# -- finding 8 ----------------------------------------------------------------------------------------
+def test_two_nodes_with_one_name_are_warned_about(ros_domain):
+    from graph_helpers import start
+
+    a = start("env_sim", task="key", episodes=1, startup_timeout=6.0)
+    b = start("env_sim", task="key", episodes=1, startup_timeout=6.0)
+    outs = [finish(p, 60)[1] for p in (a, b)]
+    assert all("2 nodes named /env_sim run in this ROS domain" in o for o in outs), outs
+
+
+def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path):
+    """Finding 8: a failed `dataset generate` left a bag folder that blocked the re-run."""
+    from graph_helpers import executable
+
+    out = tmp_path / "key_bag"
+    proc = subprocess.Popen([executable("nmrm"), "dataset", "generate", "--task", "key", "--episodes", "3000",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 120
+    while not out.with_name("key_bag.partial").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)  # in the middle of writing
+    proc.communicate(timeout=60)
+    assert not out.exists() and not out.with_name("key_bag.partial").exists()
+    again = _nmrm("dataset", "generate", "--task", "key", "--episodes", "20", "--out", str(out))
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert (out / "metadata.yaml").is_file()

@@ -18,6 +18,7 @@ Identical repeated observations (env_sim re-publishing after an action timeout) 
 
 from __future__ import annotations
 
+import shutil
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,8 +52,26 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
     if ds.final_states is None:
         raise ValueError("the dataset has no final observations (toy bags are not episodes)")
     labeller = labeller or f"oracle/{ds.task}"
+    path = Path(path)
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        raise FileExistsError(f"bag directory {path} exists and is not empty")
+    # written beside and renamed when complete: an interrupted or failed write leaves nothing behind
+    partial = path.with_name(path.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    try:
+        _write_episodes(ds, partial, labeller, start_ns, first_episode, include_oracle, path.name)
+        if path.exists():
+            path.rmdir()
+        partial.rename(path)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    return path
+
+
+def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle, name) -> None:
     t = start_ns
-    with BagWriter(path) as bag:
+    with BagWriter(path, file_name=f"{name}_0.mcap") as bag:
         for i in range(len(ds)):
             e = first_episode + i
             length = int(ds.lengths[i])
@@ -78,7 +97,6 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
                 "header": _header(t), "task": ds.task, "episode": e, "length": length,
                 "return_value": float(ds.returns[i]), "labeller": labeller}, t)
             t += STEP_NS
-    return Path(path)
 
 
 @dataclass

@@ -155,6 +155,7 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
     signal.signal(signal.SIGTERM, _stop)
     try:
         node = make_node()
+        _warn_about_namesakes(node)
         executor = _executor()
         executor.add_node(node)
         while rclpy.ok() and stop["signal"] is None and getattr(node, "exit_code", None) is None:
@@ -177,6 +178,23 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         if rclpy.ok():
             rclpy.shutdown()
     return code
+
+
+def _warn_about_namesakes(node, after: float = 2.0) -> None:
+    """Once, `after` s from start (discovery done): warn if another node of the same fully
+    qualified name runs in this ROS domain (ros2 param, wait_for_nodes and `ros2 node info` cannot
+    tell them apart)."""
+    def check() -> None:
+        node.destroy_timer(timer)
+        same = [1 for name, ns in node.get_node_names_and_namespaces()
+                if name == node.get_name() and ns == node.get_namespace()]
+        if len(same) > 1:
+            node.get_logger().warning(
+                f"{len(same)} nodes named {node.get_fully_qualified_name()} run in this ROS domain: "
+                f"ros2 param, wait_for_nodes and ros2 node info cannot tell them apart; give each its "
+                f"own name (--ros-args -r __node:=NAME) or namespace (-r __ns:=/NS)")
+
+    timer = node.create_timer(after, check)
 
 
 def _flush_publishers(node, timeout: float = 5.0) -> None:
