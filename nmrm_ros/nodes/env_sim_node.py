@@ -12,7 +12,10 @@ action space are dropped with a counted warning, never stepped. If no valid acti
 repeated observation); after `max_retries` repeats the episode is **abandoned** (counted, with the
 step it stopped at) and the next one starts at step 0 — the point where every consumer that broke
 off (a bad message, a restarted node) joins again. That first observation is re-published every
-`action_timeout` s for up to `startup_timeout` s, so a node that is still restarting joins it. After `max_abandoned` abandoned episodes in a
+`action_timeout` s for up to `startup_timeout` s, so a node that is still restarting joins it.
+An episode starts only when every node of `wait_for_nodes` subscribes (a killed labeller leaves
+the graph within the Fast DDS lease, 5 s with config/fastdds_discovery.xml; env_sim then waits
+for it to come back, up to `startup_timeout` s, before the next episode). After `max_abandoned` abandoned episodes in a
 row the node gives up and exits with code 1. Abandoned episodes count towards `episodes`.
 Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
 them those of every node named in `wait_for_nodes`, match its observation topic and an action
@@ -66,6 +69,7 @@ class EnvSimNode(Node):
         self.abandoned = 0  # episodes abandoned in all
         self.abandoned_in_a_row = 0
         self.abandoned_at = 0.0
+        self.waiting_since = None  # monotonic time since a node of wait_for_nodes is missing
         self.startup_timeout = float(p["startup_timeout"])
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_for_nodes = {n for n in p["wait_for_nodes"] if n}
@@ -108,6 +112,16 @@ class EnvSimNode(Node):
                     f"start-up timeout: {self.pub.get_subscription_count()} observation subscriber(s) "
                     f"of {self.wait_for}, missing nodes {sorted(missing)}, "
                     f"{self.sub.get_publisher_count()} action publisher(s)")
+                self.exit_code = 1
+            return
+        if self.waiting_since is not None:
+            missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
+            if not missing:
+                self.get_logger().info(f"all of {sorted(self.wait_for_nodes)} are back; episode {self.episode} starts")
+                self.begin_episode()
+            elif now - self.waiting_since > self.startup_timeout:
+                self.get_logger().error(f"{sorted(missing)} did not come back within {self.startup_timeout:.0f} s; "
+                                        f"giving up before episode {self.episode}")
                 self.exit_code = 1
             return
         if self.state is not None and now - self.sent_at > self.action_timeout:
@@ -153,6 +167,17 @@ class EnvSimNode(Node):
             self.state = None
             self.exit_code = 0
             return
+        missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
+        if missing:  # a node of wait_for_nodes left (killed): wait for it to come back
+            self.get_logger().warning(f"{sorted(missing)} left the graph; episode {self.episode} waits for "
+                                      f"them (up to startup_timeout, {self.startup_timeout:.0f} s)")
+            self.state = None
+            self.waiting_since = time.monotonic()
+            return
+        self.begin_episode()
+
+    def begin_episode(self) -> None:
+        self.waiting_since = None
         obs, _ = self.env.reset(seed=self.seed + self.episode)
         self.step_index = 0
         self.state = obs
