@@ -327,3 +327,35 @@ def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path):
     again = _nmrm("dataset", "generate", "--task", "key", "--episodes", "20", "--out", str(out))
     assert again.returncode == 0, again.stdout + again.stderr
     assert (out / "metadata.yaml").is_file()
+
+
+# -- finding 5: parameters --------------------------------------------------------------------------
+@pytest.mark.parametrize("node, param, message", [
+    ("env_sim", "episodes:=abc", "parameter 'episodes' must be an integer, got a string 'abc'"),
+    ("env_sim", "episodes:=-5", "parameter 'episodes' must be at least 0, got -5"),
+    ("env_sim", "start_delay:=-1", "parameter 'start_delay' must be at least 0.0, got -1.0"),
+    ("labeller_oracle", "label_noise_std:=-1.0", "parameter 'label_noise_std' must be at least 0.0, got -1.0"),
+    ("recorder", "flush_period:=0.0", "parameter 'flush_period' must be at least 0.001, got 0.0"),
+    ("env_sim", "wait_for_nodes:=3", "parameter 'wait_for_nodes' must be a string array, got an integer 3"),
+])
+def test_wrong_parameters_get_one_line(ros_domain, node, param, message):
+    from graph_helpers import executable
+
+    result = subprocess.run([executable(node), "--ros-args", "-p", param], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.strip().splitlines() == [f"[{node}] error: {message}"]
+
+
+def test_lossless_conversions_and_unknown_names(ros_domain):
+    """start_delay:=4 (an integer for a double) and wait_for_nodes:=agent (a string for a string
+    array) used to kill env_sim; unknown names were accepted silently."""
+    from graph_helpers import executable
+
+    result = subprocess.run([executable("env_sim"), "--ros-args", "-p", "start_delay:=4", "-p",
+                             "wait_for_nodes:=agent", "-p", "startup_timeout:=0.5", "-p", "epsiodes:=3"],
+                            capture_output=True, text=True, timeout=60)
+    out = result.stdout + result.stderr
+    assert "ignoring unknown parameter(s) ['epsiodes']" in out
+    assert "waiting for 1 subscriber(s) ['agent']" in out  # converted, then the start-up timeout
+    assert result.returncode == 1 and "start-up timeout" in out and "Traceback" not in out

@@ -33,7 +33,7 @@ _TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a double", str: "a str
 def _type_name(value) -> str:
     if isinstance(value, (list, tuple)):
         inner = _TYPE_NAMES.get(type(value[0]), "a value").split(" ", 1)[1] if value else "string"
-        return f"{inner} array"
+        return f"an {inner} array" if inner[0] in "aeiou" else f"a {inner} array"
     return _TYPE_NAMES.get(type(value), type(value).__name__)
 
 
