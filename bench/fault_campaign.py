@@ -13,8 +13,9 @@ tracebacks, hangs, silently corrupted results, episodes lost.
 - messages: one graph (`nmrm launch`, oracle mode, env_sim with action_timeout 0.5 s, 2 retries);
   malformed observations (NaN, inf, wrong size, future step, past step, unknown episode without
   step 0) published into it one at a time; episodes lost = env_sim's abandoned episodes.
-- restarts: env_sim, labeller, reward model and agent as separate processes; `kill -9` of one
-  (reward_model, labeller_oracle, agent in turn) mid-run and an immediate restart, N times each.
+- restarts: env_sim, labeller, reward model and agent as separate processes with config/graph.yaml's
+  env_sim settings (action_timeout 5 s, 3 re-publications, wait_for_labels); `kill -9` of one
+  (reward_model, labeller_oracle, agent in turn) mid-episode and an immediate restart, N times each.
 """
 
 from __future__ import annotations
@@ -144,13 +145,17 @@ def inject_messages(n: int, seed: int) -> list:
     tmp = Path(tempfile.mkdtemp())
     cap = Capture()
     pub = cap.publisher(EnvObservation, OBSERVATION)
-    episodes = n + 20
+    episodes = 3 * n + 20
     proc = launch(f"episodes:={episodes}", f"params:={_params(tmp)}", "wait_for_subscribers:=3")
     kinds = ["nan", "inf", "size", "future", "past", "no_step0"]
     hang = False
     if not cap.spin_until(lambda: len(cap.msgs["observation"]) >= 50, 60):
         hang = True
+    injected = 0
     for i in range(n):
+        if proc.poll() is not None:
+            break  # the graph finished (all its episodes) before every fault was injected
+        injected += 1
         cur = cap.msgs["observation"][-1]
         kind = kinds[i % len(kinds)]
         state = [0.5, 0.5]
@@ -170,8 +175,9 @@ def inject_messages(n: int, seed: int) -> list:
             episode, step = cur.episode + 1000, 5
         pub.publish(EnvObservation(task="key", episode=episode, step=step, state=state))
         before = len(cap.msgs["observation"])
-        if not cap.spin_until(lambda b=before: len(cap.msgs["observation"]) >= b + 120, 60):
-            hang = True
+        if not cap.spin_until(lambda b=before: len(cap.msgs["observation"]) >= b + 120
+                              or proc.poll() is not None, 60):
+            hang = True  # the graph is still running but stalled
             break
     cap.node.destroy_publisher(pub)
     cap.spin_until(lambda: proc.poll() is not None, 300)
@@ -183,7 +189,8 @@ def inject_messages(n: int, seed: int) -> list:
     tracebacks = out.count("Traceback")
     lost = _abandoned(out)
     labelled = re.findall(r"labelled (\d+) episode", out)
-    return [row("malformed observation into a running graph", n, n if code == 0 else 0, tracebacks, int(hang),
+    return [row("malformed observation into a running graph", injected, injected if code == 0 else 0,
+                tracebacks, int(hang),
                 0, f"{lost} abandoned of {episodes} (exit {code}; labelled {labelled[-1] if labelled else '?'})")]
 
 
@@ -195,9 +202,10 @@ def kill_restart(times: int, seed: int) -> list:
     for victim in ("reward_model", "labeller_oracle", "agent"):
         episodes = 3 * times + 10
         cap = Capture()
-        fast = {"action_timeout": 0.5, "max_retries": 2}
+        # config/graph.yaml's env_sim settings: action_timeout 5 s, 3 re-publications, labels awaited
         env = start("env_sim", task="key", episodes=episodes, wait_for_subscribers=3,
-                    wait_for_nodes="[labeller_oracle, reward_model]", start_delay=1.0, **fast)
+                    wait_for_nodes="[labeller_oracle, reward_model]", start_delay=1.0,
+                    action_timeout=5.0, max_retries=3, wait_for_labels=True)
         args = {"reward_model": dict(mode="oracle", task="key", exit_with_upstream=True),
                 "labeller_oracle": dict(task="key", exit_with_upstream=True),
                 "agent": dict(task="key", exit_with_upstream=True)}
@@ -227,9 +235,11 @@ def kill_restart(times: int, seed: int) -> list:
         labels = {m.episode for m in cap.msgs["label"]}
         cap.close()
         tracebacks = sum(o.count("Traceback") for o in outs + [out])
+        unlabelled = re.search(r"(\d+) without a label", out)
         rows.append(row(f"kill -9 + restart of {victim}", times, times if code == 0 else 0, tracebacks,
-                        int(hang), 0, f"{_abandoned(out)} abandoned of {episodes} (exit {code}; "
-                                      f"{len(labels)} labelled)"))
+                        int(hang), 0, f"{_abandoned(out)} abandoned, {len(labels)} of {episodes} labelled "
+                                      f"(env_sim: {unlabelled.group(1) if unlabelled else '?'} without a "
+                                      f"label; exit {code})"))
     return rows
 
 

@@ -15,7 +15,10 @@ off (a bad message, a restarted node) joins again. That first observation is re-
 `action_timeout` s for up to `startup_timeout` s, so a node that is still restarting joins it.
 An episode starts only when every node of `wait_for_nodes` subscribes (a killed labeller leaves
 the graph within the Fast DDS lease, 5 s with config/fastdds_discovery.xml; env_sim then waits
-for it to come back, up to `startup_timeout` s, before the next episode). After `max_abandoned` abandoned episodes in a
+for it to come back, up to `startup_timeout` s, before the next episode). With `wait_for_labels`
+(config/graph.yaml: on, for the oracle labeller) the next episode also waits, up to
+`action_timeout` s, for this episode's TrajectoryReturn, so a killed labeller costs the episode in
+progress, not every episode run while it restarts. After `max_abandoned` abandoned episodes in a
 row the node gives up and exits with code 1. Abandoned episodes count towards `episodes`.
 Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
 them those of every node named in `wait_for_nodes`, match its observation topic and an action
@@ -30,11 +33,11 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from nmrm_msgs.msg import AgentAction, EnvObservation
+from nmrm_msgs.msg import AgentAction, EnvObservation, TrajectoryReturn
 
 from ..ros.messages import as_vector, to_float_list
 from ..ros.node_main import Param, declare_parameters, require_task, run_node, subscribed_nodes
-from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
+from ..ros.topics import ACTION, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
     "task": Param("key", "timer | moving | key | charger | lunar_lander"),
@@ -44,6 +47,8 @@ PARAMETERS = {
     "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation", 0.001),
     "max_retries": Param(3, "re-publications of one observation before abandoning the episode", 0),
     "max_abandoned": Param(5, "abandoned episodes in a row before giving up (exit 1)", 1),
+    "wait_for_labels": Param(False, "before the next episode, wait up to action_timeout for this one's "
+                                    "TrajectoryReturn (an oracle labeller in the loop; not for people)"),
     "wait_for_subscribers": Param(1, "observation subscriptions to wait for before starting", 0),
     "wait_for_nodes": Param([""], "names of nodes whose observation subscriptions to wait for"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher", 0.001),
@@ -79,6 +84,12 @@ class EnvSimNode(Node):
 
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
         self.sub = self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS)
+        self.wait_for_labels = bool(p["wait_for_labels"])
+        self.awaiting_label = None  # (episode, since) while waiting for an episode's label
+        self.unlabelled = 0
+        if self.wait_for_labels:
+            self.labels_sub = self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label,
+                                                       STEP_QOS)
         self.episode = -1
         self.step_index = 0
         self.state = None
@@ -113,6 +124,15 @@ class EnvSimNode(Node):
                     f"of {self.wait_for}, missing nodes {sorted(missing)}, "
                     f"{self.sub.get_publisher_count()} action publisher(s)")
                 self.exit_code = 1
+            return
+        if self.awaiting_label is not None:
+            episode, since = self.awaiting_label
+            if now - since > self.action_timeout:
+                self.unlabelled += 1
+                self.awaiting_label = None
+                self.get_logger().warning(f"no label for episode {episode} within {self.action_timeout} s "
+                                          f"({self.unlabelled} so far); starting the next episode")
+                self.start_episode()
             return
         if self.waiting_since is not None:
             missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
@@ -163,7 +183,8 @@ class EnvSimNode(Node):
             self.get_logger().info(f"done: {self.episode} episodes, {self.steps_total} steps in "
                                    f"{seconds:.2f} s ({self.steps_total / max(seconds, 1e-9):.0f} steps/s), "
                                    f"{self.dropped} action(s) dropped, {self.abandoned} episode(s) "
-                                   f"abandoned (no valid action after {self.max_retries} re-publications)")
+                                   f"abandoned (no valid action after {self.max_retries} re-publications)"
+                                   + (f", {self.unlabelled} without a label" if self.wait_for_labels else ""))
             self.state = None
             self.exit_code = 0
             return
@@ -218,9 +239,18 @@ class EnvSimNode(Node):
         if terminated or truncated:
             self.publish_observation(bool(terminated), bool(truncated))
             self.abandoned_in_a_row = 0
-            self.start_episode()
+            self.state = None
+            if self.wait_for_labels:
+                self.awaiting_label = (self.episode, time.monotonic())
+            else:
+                self.start_episode()
         else:
             self.publish_observation(False, False)
+
+    def on_label(self, msg: TrajectoryReturn) -> None:
+        if self.awaiting_label is not None and msg.episode == self.awaiting_label[0]:
+            self.awaiting_label = None
+            self.start_episode()
 
     def parse_action(self, values) -> np.ndarray | int:
         if self.discrete:
