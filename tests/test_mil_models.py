@@ -115,6 +115,10 @@ def test_checkpoint_round_trip_and_refusals(tmp_path):
         load_checkpoint(path)
     path.write_bytes(b"garbage")
     meta_path.write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match="do not belong to"):  # the .json holds the .pt's hash
+        load_checkpoint(path)
+    record.pop("weights_sha256")  # a checkpoint from before the hash: the weights are read
+    meta_path.write_text(json.dumps(record))
     with pytest.raises(CheckpointError, match="cannot read"):
         load_checkpoint(path)
 

@@ -13,20 +13,14 @@ import torch
 
 from graph_helpers import REPO, executable, finish, start
 from nmrm_ros.bags import load_bag_dataset
-from nmrm_ros.datasets import generate_screened
-from nmrm_ros.mil import load_train_config
-from nmrm_ros.mil.pipeline import train_and_evaluate
 from nmrm_ros.rl import train_agent
 
 LEARN_LAUNCH = REPO / "launch_scripts" / "learn.launch.yaml"
 
 
 @pytest.fixture(scope="module")
-def key_checkpoint(tmp_path_factory):
-    ds = generate_screened("key", 200, seed=0)
-    path = tmp_path_factory.mktemp("ckpt") / "key_csc"
-    return train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=2), out=path,
-                              progress=False).checkpoint
+def key_checkpoint(small_key_checkpoint):
+    return small_key_checkpoint
 
 
 def test_graph_learner_sees_the_same_transitions_as_the_wrapper(ros_domain, tmp_path, key_checkpoint):

@@ -11,16 +11,12 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
 
 from graph_helpers import executable, finish
 from nmrm_ros.bags import bag_summary, load_bag_dataset
-from nmrm_ros.datasets import generate_screened
-from nmrm_ros.mil import load_train_config
-from nmrm_ros.mil.pipeline import train_and_evaluate
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_DIR = REPO / "launch_scripts"
@@ -51,11 +47,8 @@ def assert_nodes_exited_cleanly(kind: str, out: str, nodes: tuple) -> None:
 
 
 @pytest.fixture(scope="module")
-def key_checkpoint(tmp_path_factory):
-    ds = generate_screened("key", 200, seed=0)
-    path = tmp_path_factory.mktemp("ckpt") / "key_csc"
-    return train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=2), out=path,
-                              progress=False).checkpoint
+def key_checkpoint(small_key_checkpoint):
+    return small_key_checkpoint
 
 
 @pytest.mark.parametrize("kind", ["ros2", "nmrm"])
