@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -40,8 +41,17 @@ def test_two_namespaced_graphs_one_recorder_and_training(ros_domain, tmp_path):
     same episode numbers 0..4 with different seeds; one recorder records both; the bag gives 10
     trajectories keyed by their namespace, and `nmrm train --bag` trains on them."""
     robots = [_launch_robot("robot1", 1, ROS2.exists()), _launch_robot("robot2", 2, False)]
+    try:
+        _run(robots, tmp_path)
+    finally:  # a failed run must not leave the graphs running (ros2 launch's nodes are in its group)
+        for r in robots:
+            if r.poll() is None:
+                os.killpg(r.pid, signal.SIGKILL)
+
+
+def _run(robots, tmp_path):
     # the recorder starts once both graphs' nodes are up: a process that starts *before* the others
-    # can take ~3.5 s to discover them (see README, "A viewer must be matched before env_sim starts")
+    # could take ~3.5 s to discover them without our discovery profile (README, "Discovery settings")
     logs = [_wait_for_line(r, "waiting for 3 subscriber(s)") for r in robots]
     bag = tmp_path / "two_robots"
     rec = start("recorder", output=str(bag), namespaces="[/robot1, /robot2]", exit_with_upstream=True)
