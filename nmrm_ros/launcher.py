@@ -113,7 +113,7 @@ def parameter_value(raw, variables: dict, name: str):
     type. Anything else is a LaunchError, as it is an error under `ros2 launch`.
     """
     def item(value):
-        if isinstance(value, bool) or isinstance(value, (int, float)):
+        if isinstance(value, (int, float)):  # bool is an int
             return value
         if not isinstance(value, str):
             raise LaunchError(f"parameter {name!r}: unsupported value {value!r}")

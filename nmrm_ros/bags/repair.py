@@ -50,11 +50,11 @@ class ScanReport:
     skipped: list  # (offset, what) of byte ranges that were not records
 
     @property
-    def damaged(self) -> list:
-        return [c for c in self.chunks if c.error] + [c for c in self.skipped]
+    def bad_chunks(self) -> list:
+        return [c for c in self.chunks if c.error]
 
     def describe(self) -> str:
-        bad = [c for c in self.chunks if c.error]
+        bad = self.bad_chunks
         parts = [f"chunk at byte {c.offset}: {c.error}" for c in bad[:3]]
         if len(bad) > 3:
             parts.append(f"{len(bad) - 3} more damaged chunk(s)")
@@ -198,7 +198,7 @@ def repair_bag(path: str | Path) -> RepairReport:
     (work / file.name).replace(file)
     (work / "metadata.yaml").replace(meta)
     shutil.rmtree(work, ignore_errors=True)
-    lost = sum(1 for c in scan.chunks if c.error)
+    lost = len(scan.bad_chunks)
     return RepairReport(directory, sum(counts.values()), counts, scan.describe(), backup,
                         chunks_kept=len(scan.chunks) - lost, chunks_lost=lost, messages_without_channel=orphans)
 

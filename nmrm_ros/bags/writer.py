@@ -102,14 +102,13 @@ class BagWriter:
             self._encoders[type_name] = serialize_dynamic(type_name, message_definition(type_name))[type_name]
         return self._encoders[type_name](message)
 
-    def flush(self, finish_chunk: bool = True) -> None:
-        """Push the bag to the disk (fsync): completed chunks, and with `finish_chunk` the chunk in
-        progress too (ended early, so nothing written so far is lost on a hard kill; smaller
-        chunks compress a little less). A no-op when nothing was written since the last flush."""
+    def flush(self) -> None:
+        """End the chunk in progress and push the bag to the disk (fsync), so nothing written so far
+        is lost on a hard kill (smaller chunks compress a little less). A no-op when nothing was
+        written since the last flush."""
         if self._sequence == self._flushed_at:
             return
-        if finish_chunk:
-            self._writer.flush()
+        self._writer.flush()
         self._file.flush()
         os.fsync(self._file.fileno())
         self._flushed_at = self._sequence

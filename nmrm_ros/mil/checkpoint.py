@@ -45,14 +45,19 @@ def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task:
         "weights_sha256": _sha256(weights),
         "task": task,
         "model": model.config.to_dict(),
-        "normalisation": {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
-                          "return_scale": float(model.return_scale)},
+        "normalisation": _normalisation(model),
         **meta,
     }
     tmp = info.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(record, indent=2))
     os.replace(tmp, info)  # the metadata appears whole, after its weights
     return weights
+
+
+def _normalisation(model) -> dict:
+    """The normalisation held in the weights (model buffers), as the .json records it."""
+    return {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
+            "return_scale": float(model.return_scale)}
 
 
 def _sha256(path: Path) -> str:
@@ -88,9 +93,10 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
         raise CheckpointError(f"checkpoint {weights} was trained on task {record.get('task')!r}, "
                               f"not {task!r}")
     expected = record.get("weights_sha256")
-    if expected is not None and _sha256(weights) != expected:
+    actual = _sha256(weights) if expected is not None else None
+    if actual != expected:
         raise CheckpointError(f"checkpoint weights {weights} do not belong to {info} (SHA-256 "
-                              f"{_sha256(weights)[:12]}..., the metadata expects {expected[:12]}...): "
+                              f"{actual[:12]}..., the metadata expects {expected[:12]}...): "
                               f"a .pt and a .json from different trainings?")
     if weights.stat().st_size == 0:
         raise CheckpointError(f"cannot read checkpoint weights {weights}: the file is empty")
@@ -116,8 +122,7 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
                               f"{str(exc).splitlines()[0]}") from None
     norm = record.get("normalisation")
     if norm is not None:
-        ours = {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
-                "return_scale": float(model.return_scale)}
+        ours = _normalisation(model)
         try:
             same = all(torch.allclose(torch.tensor(norm[k], dtype=torch.float64),
                                       torch.tensor(ours[k], dtype=torch.float64), rtol=1e-5, atol=1e-7)

@@ -110,7 +110,7 @@ class EnvSimNode(Node):
         if not self.started:
             ready = (self.pub.get_subscription_count() >= self.wait_for
                      and self.sub.get_publisher_count() >= 1
-                     and subscribed_nodes(self, self.pub.topic_name) >= self.wait_for_nodes)
+                     and not self.missing_nodes())
             if ready and self.ready_at is None:
                 self.ready_at = now
             if self.ready_at is not None and now - self.ready_at >= self.start_delay:
@@ -118,7 +118,7 @@ class EnvSimNode(Node):
                 self.t_start = now
                 self.start_episode()
             elif self.ready_at is None and now > self.startup_deadline:
-                missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
+                missing = self.missing_nodes()
                 self.get_logger().error(
                     f"start-up timeout: {self.pub.get_subscription_count()} observation subscriber(s) "
                     f"of {self.wait_for}, missing nodes {sorted(missing)}, "
@@ -135,7 +135,7 @@ class EnvSimNode(Node):
                 self.start_episode()
             return
         if self.waiting_since is not None:
-            missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
+            missing = self.missing_nodes()
             if not missing:
                 self.get_logger().info(f"all of {sorted(self.wait_for_nodes)} are back; episode {self.episode} starts")
                 self.begin_episode()
@@ -157,6 +157,10 @@ class EnvSimNode(Node):
                    f"first observation after an abandoned episode, for a restarted node to join "
                    f"(up to startup_timeout, {now - self.abandoned_at:.0f}/{self.startup_timeout:.0f} s)"))
             self.publish_observation(False, False)
+
+    def missing_nodes(self) -> set:
+        """Nodes of `wait_for_nodes` without an observation subscription right now."""
+        return self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
 
     def abandon_episode(self) -> None:
         """No valid action after `max_retries` re-publications: count the episode as abandoned and
@@ -188,7 +192,7 @@ class EnvSimNode(Node):
             self.state = None
             self.exit_code = 0
             return
-        missing = self.wait_for_nodes - subscribed_nodes(self, self.pub.topic_name)
+        missing = self.missing_nodes()
         if missing:  # a node of wait_for_nodes left (killed): wait for it to come back
             self.get_logger().warning(f"{sorted(missing)} left the graph; episode {self.episode} waits for "
                                       f"them (up to startup_timeout, {self.startup_timeout:.0f} s)")

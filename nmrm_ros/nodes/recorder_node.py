@@ -50,8 +50,9 @@ class RecorderNode(Node):
                   for ns in (p["namespaces"] or [""]) for t in p["topics"]]
         resolved = {}
         for t in topics:
+            name = self.resolve_topic_name(t)
             try:
-                resolved[t] = (self.resolve_topic_name(t), split_topic(self.resolve_topic_name(t))[1])
+                resolved[t] = (name, split_topic(name)[1])
             except ValueError as exc:
                 raise NodeError(f"cannot record {t!r}: {exc}") from None
         try:

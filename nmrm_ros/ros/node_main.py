@@ -44,9 +44,6 @@ def _coerce(name: str, given, default):
         return float(given)
     if isinstance(default, (list, tuple)) and all(isinstance(d, str) for d in default) and isinstance(given, str):
         return [given]
-    if (isinstance(default, (list, tuple)) and default and isinstance(default[0], float)
-            and isinstance(given, (list, tuple)) and all(isinstance(g, int) and not isinstance(g, bool) for g in given)):
-        return [float(g) for g in given]
     raise NodeError(f"parameter {name!r} must be {_type_name(default)}, got {_type_name(given)} {given!r}")
 
 
