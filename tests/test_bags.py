@@ -89,6 +89,12 @@ def _publish_episodes(capture, n_episodes, length=100, task="key"):
         lab.publish(TrajectoryReturn(task=task, episode=e, length=length, return_value=float(e),
                                      labeller="oracle/key"))
         capture.spin_for(0.01)
+    # the recorder has them once it acknowledged them: our side matching it (the subscription
+    # count above) does not mean it matched us yet, and the reliable resend can take a heartbeat
+    from rclpy.duration import Duration
+
+    for p in (pub, lab):
+        assert p.wait_for_all_acked(Duration(seconds=30))
     capture.spin_for(0.5)
 
 
