@@ -17,11 +17,11 @@ from nmrm_ros.mil.pipeline import member_splits, train_ensemble_and_evaluate
 from nmrm_ros.mil.training import train_ensemble
 
 
-def _members(arch, task="key", d=2, k=3):
+def _members(arch, task="key", d=2, k=3, hidden_size=2):
     models = []
     for m in range(k):
         torch.manual_seed(10 + m)
-        model = build_model(model_config(arch, task, d, dropout=0.1))
+        model = build_model(model_config(arch, task, d, dropout=0.1, hidden_size=hidden_size))
         model.set_normalisation(torch.rand(d), torch.rand(d) + 0.5, 1.0)
         if model.uses_lstm:
             with torch.no_grad():
@@ -32,9 +32,11 @@ def _members(arch, task="key", d=2, k=3):
 
 
 @pytest.mark.parametrize("arch", ARCHITECTURES)
-@pytest.mark.parametrize("task,d", [("key", 2), ("lunar_lander", 8)])
-def test_ensemble_forward_equals_each_members_forward(arch, task, d):
-    models = _members(arch, task, d)
+@pytest.mark.parametrize("task,d,hidden_size", [("key", 2, 2), ("lunar_lander", 8, 2), ("key", 2, 8)])
+def test_ensemble_forward_equals_each_members_forward(arch, task, d, hidden_size):
+    """Also for an LSTM wide enough (4k >= features) that the ensemble feeds it the features
+    through block-diagonal input weights instead of precomputed gate inputs."""
+    models = _members(arch, task, d, hidden_size=hidden_size)
     ens = MILEnsemble.from_members(models).eval()
     x = torch.randn(3, 5, 17, d)
     lengths = torch.randint(1, 18, (3, 5))

@@ -138,15 +138,25 @@ class MILEnsemble(nn.Module):
         eye = torch.eye(K, dtype=f.dtype)
         p = self.params
         # torch's gate-major layout [i | f | g | o], each gate block ordered by member then unit
-        w_ih = torch.einsum("mghf,ml->gmhlf", p["lstm__weight_ih_l0"].view(K, 4, k, F), eye)
         w_hh = torch.einsum("mghj,ml->gmhlj", p["lstm__weight_hh_l0"].view(K, 4, k, k), eye)
-        b_ih = p["lstm__bias_ih_l0"].view(K, 4, k).transpose(0, 1).reshape(-1)
         b_hh = p["lstm__bias_hh_l0"].view(K, 4, k).transpose(0, 1).reshape(-1)
+        if 4 * k < F:
+            # Each member's gate inputs W_ih f + b_ih as K small products, fed to the fused LSTM
+            # through an identity input weight: (4Kk)^2 per step instead of the block-diagonal
+            # (4Kk)(KF), most of which multiplies zeros.
+            gates = torch.baddbmm(p["lstm__bias_ih_l0"].unsqueeze(1), f.reshape(K, B * T, F),
+                                  p["lstm__weight_ih_l0"].transpose(1, 2))  # (K, B*T, 4k)
+            inp = gates.view(K, B, T, 4, k).permute(1, 2, 3, 0, 4).reshape(B, T, 4 * K * k)
+            w_ih = torch.eye(4 * K * k, dtype=f.dtype)
+            b_ih = torch.zeros(4 * K * k, dtype=f.dtype)
+        else:
+            w_ih = torch.einsum("mghf,ml->gmhlf", p["lstm__weight_ih_l0"].view(K, 4, k, F), eye)
+            w_ih = w_ih.reshape(4 * K * k, K * F)
+            b_ih = p["lstm__bias_ih_l0"].view(K, 4, k).transpose(0, 1).reshape(-1)
+            inp = f.permute(1, 2, 0, 3).reshape(B, T, K * F)
         h0 = p["h0"].reshape(1, 1, K * k).expand(1, B, K * k).contiguous()
         c0 = p["c0"].reshape(1, 1, K * k).expand(1, B, K * k).contiguous()
-        inp = f.permute(1, 2, 0, 3).reshape(B, T, K * F)
-        out, _, _ = torch.lstm(inp, (h0, c0),
-                               [w_ih.reshape(4 * K * k, K * F), w_hh.reshape(4 * K * k, K * k), b_ih, b_hh],
+        out, _, _ = torch.lstm(inp, (h0, c0), [w_ih, w_hh.reshape(4 * K * k, K * k), b_ih, b_hh],
                                True, 1, 0.0, self.training, False, True)
         return out.view(B, T, K, k).permute(2, 0, 1, 3)
 
