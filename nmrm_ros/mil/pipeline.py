@@ -36,7 +36,8 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
     cfg.seed), evaluate on the test split, and save a checkpoint to `out` if given."""
     train, val, test = split_indices(len(ds), split_seed)
     torch.manual_seed(cfg.seed)
-    model = build_model(model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout))
+    model = build_model(model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
+                                     hidden_size=cfg.hidden_size))
     result = train_model(model, ds.subset(train), ds.subset(val), cfg, progress=progress)
     test_metrics = evaluate(model, ds.subset(test))
     val_metrics = evaluate(model, ds.subset(val))
@@ -93,7 +94,8 @@ def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: T
     a checkpoint to `out` if given. on_epoch: see `train_ensemble`."""
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode)
     seeds = [cfg.seed + m for m in range(members)]
-    config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout)
+    config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
+                          hidden_size=cfg.hidden_size)
     ens = init_ensemble(config, seeds)
     result = train_ensemble(ens, ds, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                             progress=progress, on_epoch=on_epoch)

@@ -52,6 +52,7 @@ class TrainConfig:
     min_lr_ratio: float = 0.0
     grad_clip: float = 0.0  # per-member gradient norm limit; 0 = off
     lstm_forget_bias: float = 0.0  # initial forget-gate bias (b_ih + b_hh) of every LSTM
+    hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
