@@ -371,6 +371,29 @@ def evaluate(
                f"return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f}")
 
 
+@app.command()
+def explain(
+    checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
+    out: Path = typer.Option(Path("runs/explain"), help="directory for the PNGs and index.html"),
+    bag: Path = typer.Option(None, help="a recording: embeddings of its episodes and per-episode views"),
+    task: str = typer.Option(None, help="task (default: the checkpoint's)"),
+    n: int = typer.Option(300, help="trajectories for the hidden-state embedding"),
+    seed: int = typer.Option(1, help="data seed of the generated trajectories (without --bag)"),
+    episodes: int = typer.Option(3, help="with --bag: how many per-episode views"),
+) -> None:
+    """Pictures of what a model learnt: hidden-state embeddings, reward maps, probe trajectories
+    and (with --bag) recorded episodes, in OUT/index.html."""
+    from .bags import BagError
+    from .interpret import explain as write_views
+    from .mil import CheckpointError
+
+    try:
+        figures = write_views(checkpoint, out, bag=bag, task=task, n=n, seed=seed, episodes=episodes)
+    except (CheckpointError, BagError, ValueError) as exc:
+        raise typer.BadParameter(str(exc)) from None
+    typer.echo(f"{len(figures)} figures: {out / 'index.html'}")
+
+
 rl_app = typer.Typer(help="Train and evaluate RL agents on learnt or oracle non-Markovian rewards.",
                      no_args_is_help=True)
 app.add_typer(rl_app, name="rl")

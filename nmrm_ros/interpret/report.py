@@ -1,0 +1,133 @@
+"""`explain`: every view of one checkpoint, as PNGs and an index.html that shows them together.
+
+    explain("runs/demo/csc", "runs/explain", task="key")        # trajectories generated
+    explain("runs/demo/csc", "runs/explain", bag="bags/run1")   # a recording's episodes
+
+Views: hidden-state embeddings (models with an LSTM), reward maps and probe trajectories
+(navigation tasks), and per-episode views (with a bag: path, served reward, oracle reward).
+"""
+
+from __future__ import annotations
+
+import html
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..mil import load_checkpoint
+from ..mil.ensemble import MILEnsemble
+from . import plots
+from .embeddings import hidden_embedding
+from .episode_view import read_episodes
+from .probes import probe_states
+from .reward_maps import context_prefixes, learnt_reward_map, oracle_reward_map
+from .traces import model_traces, oracle_traces
+
+
+@dataclass
+class Figure:
+    section: str
+    path: Path
+    caption: str
+
+
+def _trajectories(task: str, bag: str | Path | None, n: int, seed: int):
+    """(states (N, T, d), lengths (N,), description) from a bag's complete episodes or generated."""
+    if bag is not None:
+        episodes = [e for e in read_episodes(bag).values() if e.task == task][:n]
+        if not episodes:
+            raise ValueError(f"{bag}: no complete episode of task {task!r}")
+        horizon = max(len(e.states) for e in episodes)
+        states = np.zeros((len(episodes), horizon, episodes[0].states.shape[1]), np.float32)
+        for i, e in enumerate(episodes):
+            states[i, :len(e.states)] = e.states
+        return states, np.array([len(e.states) for e in episodes]), f"{len(episodes)} episodes of {bag}"
+    from ..datasets import generate_screened
+
+    ds = generate_screened(task, n, seed=seed)
+    return ds.states, ds.lengths, f"{len(ds)} screened {task} trajectories (data seed {seed})"
+
+
+def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = None,
+            task: str | None = None, n: int = 300, seed: int = 1, episodes: int = 3,
+            grid_size: int = 41) -> list:
+    """Write every view of `checkpoint` into `out` (PNGs + index.html); returns the Figures.
+
+    task defaults to the checkpoint's; n trajectories for the embeddings (generated with data
+    seed `seed`, or the first n complete episodes of `bag`); `episodes` per-episode views (bag)."""
+    start = time.perf_counter()
+    model, record = load_checkpoint(checkpoint)
+    task = task or record.get("task")
+    if record.get("task") not in (None, task):
+        raise ValueError(f"the checkpoint was trained on {record.get('task')!r}, not {task!r}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    name = Path(checkpoint).with_suffix("").name
+    arch = model.config.architecture
+    members = model.members if isinstance(model, MILEnsemble) else 1
+    figures: list = []
+    uses_lstm = model.uses_lstm
+
+    states, lengths, described = _trajectories(task, bag, n, seed)
+    if uses_lstm:
+        emb = hidden_embedding(model, task, states, lengths)
+        figures.append(Figure("Hidden-state embedding", plots.embedding_figure(
+            emb, task, f"{name} ({arch}) on {task}", out / "hidden_embedding.png"),
+            f"h'_(t+1) of {described}; {emb.projection}."))
+
+    maps = [(c.label, learnt_reward_map(model, prefix, grid_size), oracle_reward_map(task, prefix, grid_size))
+            for c, prefix in context_prefixes(task)]
+    if maps:
+        figures.append(Figure("Reward maps", plots.reward_map_figure(task, maps, out / "reward_maps.png"),
+                              "Reward for one step at each (x, y) after a context (a probe cut at "
+                              "step t); learnt above, oracle below."))
+
+    for probe, path in probe_states(task):
+        rewards, hidden = model_traces(model, path)
+        oracle_r, oracle_h = oracle_traces(task, path)
+        file = out / f"probe_{probe.name.replace(' ', '_').replace('-', '_')}.png"
+        figures.append(Figure("Probe trajectories", plots.trace_figure(
+            task, f"probe '{probe.name}': {probe.description}", path,
+            {"learnt": rewards, "oracle": oracle_r}, hidden, oracle_h, file),
+            f"{probe.name}: {probe.description}."))
+
+    if bag is not None:
+        for (source, episode), rec in list(read_episodes(bag).items())[:episodes]:
+            learnt, hidden = model_traces(model, rec.states) if rec.task == task else (None, None)
+            oracle_h = oracle_traces(rec.task, rec.states)[1]
+            where = f"{source or '/'} episode {episode}"
+            rewards = {"served" + (f" ({', '.join(rec.served_by)})" if rec.served_by else ""): rec.served,
+                       f"oracle ({'recorded' if rec.oracle_recorded else 'computed'})": rec.oracle,
+                       f"this model ({name})": learnt}
+            file = out / f"episode_{source.strip('/').replace('/', '_') or 'root'}_{episode}.png"
+            figures.append(Figure("Recorded episodes", plots.trace_figure(
+                rec.task, f"{rec.task}, {where}", rec.states, rewards, hidden, oracle_h, file),
+                f"{where}: {len(rec.states)} steps; served reward "
+                f"{'recorded' if rec.served is not None else 'not recorded'}."))
+
+    _write_index(out, f"{name}: {arch}, {members} member(s), task {task}", figures,
+                 time.perf_counter() - start)
+    return figures
+
+
+def _write_index(out: Path, title: str, figures: list, seconds: float) -> Path:
+    e = html.escape
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(title)}</title>",
+             "<style>body{font-family:sans-serif;max-width:1400px;margin:auto}"
+             "figure{display:inline-block;margin:8px;vertical-align:top}"
+             "img{max-width:100%;border:1px solid #ccc}figcaption{font-size:13px;max-width:900px}"
+             "</style></head><body>", f"<h1>{e(title)}</h1>",
+             f"<p>Written by <code>nmrm explain</code> in {seconds:.1f} s.</p>"]
+    section = None
+    for f in figures:
+        if f.section != section:
+            section = f.section
+            parts.append(f"<h2>{e(section)}</h2>")
+        parts.append(f"<figure><img src='{e(f.path.name, quote=True)}' alt='{e(f.caption, quote=True)}'>"
+                     f"<figcaption>{e(f.caption)}</figcaption></figure>")
+    parts.append("</body></html>")
+    path = out / "index.html"
+    path.write_text("\n".join(parts))
+    return path

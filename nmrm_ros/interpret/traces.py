@@ -1,0 +1,47 @@
+"""What a model and the oracle compute along given trajectories, step by step.
+
+model_traces(model, states) -> rewards (N, T), hidden (N, T, k): the batched forward of a
+`MILRewardModel` or `MILEnsemble` (an ensemble: the members' mean reward, the serving member's
+hidden state h'_{t+1}, as the reward_model node publishes them).
+oracle_traces(task, states) -> rewards (N, T), hidden (N, T, k_oracle): the ground truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..mil.ensemble import MILEnsemble
+from ..oracles import make_oracle
+
+
+def model_traces(model, states: np.ndarray, lengths: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """states (N, T, d) (or (T, d) for one trajectory) -> rewards (N, T), hidden (N, T, k)."""
+    states = np.asarray(states, np.float32)
+    single = states.ndim == 2
+    x = torch.as_tensor(states[None] if single else states)
+    n, t = x.shape[:2]
+    lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
+    with torch.no_grad():
+        out = model.eval()(x, lens)
+    rewards, hidden = out.rewards.double().numpy(), out.hidden.double().numpy()
+    if isinstance(model, MILEnsemble):
+        rewards, hidden = rewards.mean(0), hidden[int(model.serving_member)]
+    return (rewards[0], hidden[0]) if single else (rewards, hidden)
+
+
+def oracle_traces(task: str, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """states (N, T, d) (or (T, d)) -> the oracle's r_t (N, T) and h_{t+1} (N, T, k)."""
+    states = np.asarray(states, np.float64)
+    single = states.ndim == 2
+    states = states[None] if single else states
+    oracle = make_oracle(task)
+    n, t = states.shape[:2]
+    hidden = oracle.initial_hidden(n)
+    rewards = np.zeros((n, t))
+    hiddens = np.zeros((n, t, hidden.shape[1]))
+    for i in range(t):
+        hidden, rewards[:, i] = oracle.step(hidden, states[:, i])
+        hiddens[:, i] = hidden
+    return (rewards[0], hiddens[0]) if single else (rewards, hiddens)

@@ -1,0 +1,119 @@
+"""`nmrm explain` and its views: the arrays behind each picture are checked against independent
+computations (the online model stepped by hand, the oracle), and the PNGs and index.html exist."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.interpret import explain, model_traces, oracle_traces, probe_states
+from nmrm_ros.interpret.embeddings import project
+from nmrm_ros.interpret.episode_view import read_episodes
+from nmrm_ros.interpret.reward_maps import context_prefixes, grid, learnt_reward_map, oracle_reward_map
+from nmrm_ros.mil import OnlineRewardModel, load_checkpoint
+from nmrm_ros.bags.episodes import write_dataset_bag
+
+
+def _online_after(model, prefix):
+    online = OnlineRewardModel(model)
+    for s in prefix:
+        online.step(s)
+    return online
+
+
+def test_reward_map_is_the_online_model_stepped_at_each_grid_point(small_key_checkpoint):
+    model, _ = load_checkpoint(small_key_checkpoint)
+    (label, prefix), = [(c.label, p) for c, p in context_prefixes("key") if c.label == "key held"]
+    n = 7
+    learnt = learnt_reward_map(model, prefix, n)
+    _, _, points = grid(n)
+    expected = np.empty(n * n)
+    for i, p in enumerate(points):
+        expected[i] = _online_after(model, prefix).step(p)[0]
+    np.testing.assert_allclose(learnt.ravel(), expected, atol=1e-5)
+    # the oracle's map: reward 1 exactly on the treasure once the key is held, 0 elsewhere
+    oracle = oracle_reward_map("key", prefix, n).ravel()
+    x, y = points[:, 0], points[:, 1]
+    np.testing.assert_array_equal(oracle, ((x >= 0.4) & (x <= 0.6) & (y >= 0.7) & (y <= 0.9)).astype(float))
+
+
+def test_probe_traces_equal_the_online_models_steps(small_key_checkpoint):
+    model, _ = load_checkpoint(small_key_checkpoint)
+    for probe, states in probe_states("key"):
+        rewards, hidden = model_traces(model, states)
+        online = OnlineRewardModel(model)
+        steps = [online.step(s) for s in states]
+        np.testing.assert_allclose(rewards, [r for r, _ in steps], atol=1e-5, err_msg=probe.name)
+        np.testing.assert_allclose(hidden, np.stack([h for _, h in steps]), atol=1e-5, err_msg=probe.name)
+
+
+@pytest.mark.parametrize("task", ["timer", "moving", "key", "charger"])
+def test_probes_are_100_steps_in_the_arena_and_do_what_they_say(task):
+    probes = probe_states(task)
+    assert probes
+    returns = {}
+    for probe, states in probes:
+        assert states.shape == (100, 2) and states.min() >= 0 and states.max() <= 1
+        assert np.all(np.linalg.norm(np.diff(states, axis=0), axis=1) <= 0.1 + 1e-6)
+        returns[probe.name] = oracle_traces(task, states)[0].sum()
+    if task == "timer":
+        assert returns["optimal"] > returns["early"]
+    if task == "moving":
+        assert returns["optimal left"] > 90 and returns["static"] < 40
+    if task == "key":
+        assert returns["key first"] > 80 and returns["no key"] == 0
+    if task == "charger":
+        assert returns["optimal"] > max(returns["under-charged"], returns["over-charged"])
+
+
+def test_projection_keeps_two_dimensions_and_uses_pca_above_two():
+    rng = np.random.default_rng(0)
+    two = rng.normal(size=(50, 2))
+    points, how, explained = project(two)
+    np.testing.assert_array_equal(points, two)
+    assert how == "hidden state" and explained is None
+    wide = np.c_[rng.normal(size=(200, 1)) * 10, rng.normal(size=(200, 4)) * 0.1]
+    points, how, explained = project(wide)
+    assert points.shape == (200, 2) and how == "PCA of the 5-D hidden state"
+    assert explained[0] > 0.95 and explained.sum() <= 1 + 1e-9
+    # the first component is the wide axis (up to sign)
+    assert abs(np.corrcoef(points[:, 0], wide[:, 0])[0, 1]) > 0.999
+
+
+def test_explain_writes_every_view_for_a_bag(small_key_checkpoint, tmp_path):
+    ds = generate_screened("key", 12, seed=3)
+    bag = write_dataset_bag(ds, tmp_path / "bag")
+    episodes = read_episodes(bag)
+    assert len(episodes) == 12
+    (source, episode), rec = next(iter(episodes.items()))
+    assert source == "" and rec.served is None and rec.oracle_recorded
+    np.testing.assert_allclose(rec.oracle, ds.rewards[0, :ds.lengths[0]])
+    np.testing.assert_allclose(rec.oracle, oracle_traces("key", rec.states)[0])
+
+    out = tmp_path / "views"
+    result = subprocess.run([sys.executable, "-m", "nmrm_ros.cli", "explain", "--checkpoint",
+                             str(small_key_checkpoint), "--bag", str(bag), "--out", str(out),
+                             "--episodes", "2"], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    names = sorted(p.name for p in out.glob("*.png"))
+    assert names == ["episode_root_0.png", "episode_root_1.png", "hidden_embedding.png",
+                     "probe_key_first.png", "probe_no_key.png", "reward_maps.png"]
+    for name in names:
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    index = (out / "index.html").read_text()
+    for name in names:
+        assert f"src='{name}'" in index
+
+
+def test_explain_refuses_a_task_the_checkpoint_was_not_trained_on(small_key_checkpoint, tmp_path):
+    with pytest.raises(ValueError, match="trained on 'key', not 'timer'"):
+        explain(small_key_checkpoint, tmp_path, task="timer")
+    result = subprocess.run([sys.executable, "-m", "nmrm_ros.cli", "explain", "--checkpoint",
+                             str(tmp_path / "missing"), "--out", str(tmp_path)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
