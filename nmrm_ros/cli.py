@@ -271,6 +271,8 @@ def train(
     config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)"),
     ensemble: int = typer.Option(1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1)"),
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
+    label_swap: float = typer.Option(None, help="label noise: swap this fraction of the training and "
+                                     "validation labels between trajectories (paper Sec. 5.2)"),
 ) -> None:
     """Train a MIL reward model or an ensemble (early stopping on validation return MSE) and
     evaluate it on the test split."""
@@ -284,9 +286,12 @@ def train(
     else:
         ds, source = _load_or_generate(data, task, n, data_seed)
     cfg = _bad_input(load_train_config, ds.task, config, max_epochs=epochs, lr=lr,
-                     batch_size=batch_size, seed=seed)
+                     batch_size=batch_size, seed=seed, label_swap=label_swap)
+    if not 0.0 <= cfg.label_swap <= 1.0:
+        raise typer.BadParameter(f"--label-swap must be in [0, 1], got {cfg.label_swap}")
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
-               f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}")
+               f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
+               + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
     if ensemble > 1:
         if split_mode not in SPLIT_MODES:
             raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}")

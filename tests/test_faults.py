@@ -335,6 +335,7 @@ def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path):
     ("env_sim", "episodes:=-5", "parameter 'episodes' must be at least 0, got -5"),
     ("env_sim", "start_delay:=-1", "parameter 'start_delay' must be at least 0.0, got -1.0"),
     ("labeller_oracle", "label_noise_std:=-1.0", "parameter 'label_noise_std' must be at least 0.0, got -1.0"),
+    ("labeller_oracle", "label_noise:=flip", "unknown label_noise 'flip': use 'gaussian' or 'swap'"),
     ("recorder", "flush_period:=0.0", "parameter 'flush_period' must be at least 0.001, got 0.0"),
     ("env_sim", "wait_for_nodes:=3", "parameter 'wait_for_nodes' must be a string array, got an integer 3"),
 ])

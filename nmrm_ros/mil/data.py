@@ -47,8 +47,10 @@ class BagTensors:
     def __len__(self) -> int:
         return int(self.x.shape[0])
 
-    def batch(self, index: torch.Tensor):
-        """x, lengths, returns of the bags at `index`, trimmed to the batch's longest bag."""
+    def batch(self, index: torch.Tensor, label_index: torch.Tensor | None = None):
+        """x, lengths, returns of the bags at `index`, trimmed to the batch's longest bag; the
+        returns are those of the bags at `label_index` if given (swapped labels)."""
         lengths = self.lengths[index]
         horizon = int(lengths.max())
-        return self.x[index, :horizon], lengths, self.returns[index]
+        labels = self.returns[index if label_index is None else label_index]
+        return self.x[index, :horizon], lengths, labels

@@ -12,6 +12,9 @@ Unlike the paper (one bag per step), bags are trained in padded mini-batches; th
 on returns divided by `return_scale` (Lunar Lander: 100), as the paper scaled its targets.
 Learning-rate schedule (global): linear warm-up over `warmup_epochs`, then constant or a cosine
 decay to `lr * min_lr_ratio` at `max_epochs`. `grad_clip` > 0 clips each member's gradient norm.
+`label_swap` = p > 0 trains on noisy labels (paper Sec. 5.2): a fraction p of each member's
+training labels, and of its validation labels, are swapped between trajectories
+(`nmrm_ros.datasets.label_noise`; seeded by the member's seed); the test split stays clean.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import numpy as np
 import torch
 import yaml
 
+from ..datasets.label_noise import swap_sources
 from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
 from .ensemble import MILEnsemble
@@ -53,6 +57,7 @@ class TrainConfig:
     grad_clip: float = 0.0  # per-member gradient norm limit; 0 = off
     lstm_forget_bias: float = 0.0  # initial forget-gate bias (b_ih + b_hh) of every LSTM
     hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
+    label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -146,10 +151,12 @@ def _config_path() -> Path:
 
 @torch.no_grad()
 def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size: int = 512,
-               scaled: bool = False, index: torch.Tensor | None = None) -> np.ndarray | float:
+               scaled: bool = False, index: torch.Tensor | None = None,
+               label_index: torch.Tensor | None = None) -> np.ndarray | float:
     """Mean squared error of the predicted returns (label units, or / return_scale) over the bags
-    (or the bags at `index`: (n,), or (K, n) one row per ensemble member). A single model gives a
-    float, an ensemble an array (K,)."""
+    (or the bags at `index`: (n,), or (K, n) one row per ensemble member; against the labels of
+    the bags at `label_index`, same shape, if given). A single model gives a float, an ensemble
+    an array (K,)."""
     model.eval()
     ensemble = isinstance(model, MILEnsemble)
     if index is None:
@@ -159,7 +166,9 @@ def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size
     n = index.shape[-1]
     total = torch.zeros(model.members if ensemble else ())
     for start in range(0, n, batch_size):
-        x, lengths, returns = bags.batch(index[..., start:start + batch_size])
+        part = slice(start, start + batch_size)
+        x, lengths, returns = bags.batch(index[..., part],
+                                         None if label_index is None else label_index[..., part])
         err = model(x, lengths).returns - returns
         if scaled:
             err = err / model.return_scale
@@ -240,6 +249,14 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     train_idx = torch.as_tensor(np.stack([np.asarray(tr) for tr, _ in splits]), dtype=torch.int64)
     val_idx = torch.as_tensor(np.stack([np.asarray(va) for _, va in splits]), dtype=torch.int64)
     n_train = train_idx.shape[1]
+    # label noise: each member's training and validation labels swapped within its own split
+    train_labels, val_labels = train_idx, val_idx
+    if cfg.label_swap > 0:
+        noise = [np.random.default_rng([int(s), 0x5A4B]) for s in seeds]
+        train_labels = torch.stack([train_idx[m, swap_sources(n_train, cfg.label_swap, noise[m])]
+                                    for m in range(K)])
+        val_labels = torch.stack([val_idx[m, swap_sources(val_idx.shape[1], cfg.label_swap, noise[m])]
+                                  for m in range(K)])
     optimiser = torch.optim.Adam(ens.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
     scale = float(cfg.return_scale)
@@ -253,13 +270,15 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     epoch = 0
     for epoch in range(1, cfg.max_epochs + 1):
         ens.train()
-        order = torch.stack([train_idx[m, torch.randperm(n_train, generator=generators[m])]
-                             for m in range(K)])
+        perms = torch.stack([torch.randperm(n_train, generator=generators[m]) for m in range(K)])
+        order = train_idx.gather(1, perms)
+        label_order = train_labels.gather(1, perms)
         losses = torch.zeros(K)
         for step, i in enumerate(range(0, n_train, cfg.batch_size)):
             for group in optimiser.param_groups:
                 group["lr"] = cfg.lr_at(epoch - 1 + step / steps_per_epoch)
-            x, lengths, returns = bags.batch(order[:, i:i + cfg.batch_size])
+            x, lengths, returns = bags.batch(order[:, i:i + cfg.batch_size],
+                                             label_order[:, i:i + cfg.batch_size])
             member_loss = torch.mean(((ens(x, lengths).returns - returns) / scale) ** 2, dim=1)
             optimiser.zero_grad()
             member_loss.sum().backward()
@@ -267,7 +286,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
                 clip_member_grad_norms(ens, cfg.grad_clip)
             optimiser.step()
             losses += member_loss.detach()
-        val_mse = return_mse(ens, bags, index=val_idx)
+        val_mse = return_mse(ens, bags, index=val_idx, label_index=val_labels)
         history.append({"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist(),
                         "val_return_mse": val_mse.tolist(), "lr": optimiser.param_groups[0]["lr"]})
         stop = on_epoch is not None and on_epoch(dict(history[-1], seconds=time.perf_counter() - start))

@@ -14,9 +14,10 @@ Observations are followed with the rule of `nmrm_ros.ros.episodes` (duplicates i
 disorder breaks the episode); a state of the wrong size or with NaN breaks the episode too. Broken
 episodes are counted and logged, never labelled.
 
-Simulated label noise (`label_noise_std` > 0): Gaussian noise added to the published return (seeded
-by `noise_seed`). The paper's label *swapping* needs a pool of labelled trajectories and is done
-offline on datasets, not here.
+Simulated label noise, seeded by `noise_seed`: `label_noise` "gaussian" adds Gaussian noise of std
+`label_noise_std` (0: none) to the published return; "swap" is the paper's label swapping (Sec.
+5.2) online: a fraction `label_swap` of the episodes get the true return of one of the last
+`swap_pool` episodes, which takes theirs in exchange (`nmrm_ros.datasets.OnlineLabelSwapper`).
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryReturn
 
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, Param, declare_parameters,
+from ..datasets.label_noise import OnlineLabelSwapper
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, require_task, run_node)
 from ..ros.topics import OBSERVATION, ORACLE_STEP, STEP_QOS, TRAJECTORY_RETURN
 
@@ -36,7 +38,10 @@ PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "task": Param("key", "task whose oracle labels the episodes"),
     "publish_oracle_steps": Param(True, "also publish per-step ground truth (OracleStep)"),
-    "label_noise_std": Param(0.0, "std of Gaussian noise added to each published return", 0.0),
+    "label_noise": Param("gaussian", "gaussian (label_noise_std) | swap (label_swap, swap_pool)"),
+    "label_noise_std": Param(0.0, "label_noise gaussian: std of the noise added to each return", 0.0),
+    "label_swap": Param(0.0, "label_noise swap: fraction of episodes whose label is swapped", 0.0),
+    "swap_pool": Param(50, "label_noise swap: recent episodes whose true returns are swapped within", 1),
     "noise_seed": Param(0, "seed of the label noise"),
 }
 
@@ -56,6 +61,13 @@ class LabellerOracleNode(Node):
         self.publish_steps = bool(p["publish_oracle_steps"])
         self.noise_std = float(p["label_noise_std"])
         self.rng = np.random.default_rng(int(p["noise_seed"]))
+        self.swapper = None
+        if p["label_noise"] == "swap":
+            if not p["label_swap"] <= 1.0:
+                raise NodeError(f"label_swap must be a fraction in [0, 1], got {p['label_swap']}")
+            self.swapper = OnlineLabelSwapper(float(p["label_swap"]), int(p["swap_pool"]), self.rng)
+        elif p["label_noise"] != "gaussian":
+            raise NodeError(f"unknown label_noise {p['label_noise']!r}: use 'gaussian' or 'swap'")
         self.labeller = f"oracle/{self.task}"
         self.labelled = 0
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
@@ -85,7 +97,10 @@ class LabellerOracleNode(Node):
                 self.log_broken(msg, "final observation at step 0")
                 return
             self.follower.finish()
-            value = self.tracker.total + (self.rng.normal(0.0, self.noise_std) if self.noise_std > 0 else 0.0)
+            if self.swapper is not None:
+                value = self.swapper.label(self.tracker.total)
+            else:
+                value = self.tracker.total + (self.rng.normal(0.0, self.noise_std) if self.noise_std > 0 else 0.0)
             out = TrajectoryReturn(task=self.task, episode=msg.episode, length=msg.step,
                                    return_value=float(value), labeller=self.labeller)
             out.header.stamp = self.get_clock().now().to_msg()
@@ -100,7 +115,9 @@ class LabellerOracleNode(Node):
             self.step_pub.publish(step)
 
     def close(self) -> None:
-        self.get_logger().info(f"labelled {self.labelled} episode(s), {self.follower.broken_episodes} broken")
+        swapped = f", {self.swapper.swapped} label(s) swapped" if self.swapper is not None else ""
+        self.get_logger().info(f"labelled {self.labelled} episode(s), {self.follower.broken_episodes} broken"
+                               f"{swapped}")
 
 
 def main(args=None) -> int:
