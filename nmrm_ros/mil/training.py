@@ -215,7 +215,7 @@ def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
 
 def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
                    seeds: list | None = None, progress: bool = True,
-                   on_epoch=None) -> EnsembleTrainResult:
+                   on_epoch=None, label_swap: list | None = None) -> EnsembleTrainResult:
     """Train every member of `ens` in place on `ds`.
 
     splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
@@ -223,7 +223,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     torch's generator, seeded with seeds[0]). Each member's normalisation is fitted on its own
     training split. on_epoch(entry) is called after each epoch with its history entry (plus
     "seconds": wall time since the start); returning True stops the run. On return each member
-    holds its best-validation weights.
+    holds its best-validation weights. label_swap: K fractions of swapped labels, one per member
+    (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
     """
     K = ens.members
     if len(splits) != K:
@@ -251,11 +252,14 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     n_train = train_idx.shape[1]
     # label noise: each member's training and validation labels swapped within its own split
     train_labels, val_labels = train_idx, val_idx
-    if cfg.label_swap > 0:
+    swaps = [cfg.label_swap] * K if label_swap is None else [float(p) for p in label_swap]
+    if len(swaps) != K:
+        raise ValueError(f"{K} members need {K} label swap fractions, got {len(swaps)}")
+    if any(swaps):
         noise = [np.random.default_rng([int(s), 0x5A4B]) for s in seeds]
-        train_labels = torch.stack([train_idx[m, swap_sources(n_train, cfg.label_swap, noise[m])]
+        train_labels = torch.stack([train_idx[m, swap_sources(n_train, swaps[m], noise[m])]
                                     for m in range(K)])
-        val_labels = torch.stack([val_idx[m, swap_sources(val_idx.shape[1], cfg.label_swap, noise[m])]
+        val_labels = torch.stack([val_idx[m, swap_sources(val_idx.shape[1], swaps[m], noise[m])]
                                   for m in range(K)])
     optimiser = torch.optim.Adam(ens.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
