@@ -399,6 +399,25 @@ def explain(
     typer.echo(f"{len(figures)} figures: {out / 'index.html'}")
 
 
+@app.command("discovery-server")
+def discovery_server(
+    server_id: int = typer.Option(0, "--id", help="server id (its position in ROS_DISCOVERY_SERVER)"),
+    address: str = typer.Option("0.0.0.0", help="address to listen on"),
+    port: int = typer.Option(11811, help="UDP port"),
+) -> None:
+    """Run a Fast DDS Discovery Server (for networks without multicast); nodes then need
+    ROS_DISCOVERY_SERVER=ADDRESS:PORT (README "Several machines"). Ctrl-C stops it."""
+    import os
+
+    from .ros.discovery_server import server_command
+
+    try:
+        argv, env = server_command(server_id, address, port)
+    except FileNotFoundError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    os.execve(argv[0], argv, env)
+
+
 rl_app = typer.Typer(help="Train and evaluate RL agents on learnt or oracle non-Markovian rewards.",
                      no_args_is_help=True)
 app.add_typer(rl_app, name="rl")
