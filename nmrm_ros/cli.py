@@ -179,6 +179,34 @@ def launch(
     raise typer.Exit(run(nodes, grace=grace))
 
 
+@app.command()
+def fleet(
+    robots: int = typer.Option(2, help="number of robots (namespaces /robot1 ... /robotN)"),
+    task: str = typer.Option("key", help="timer | moving | key | charger | lunar_lander"),
+    episodes: int = typer.Option(100, help="episodes per robot (the learner learns from robots x episodes)"),
+    mode: str = typer.Option("oracle", help="reward of every robot's reward_model: oracle | model"),
+    checkpoint: Path = typer.Option(None, help="MIL checkpoint for mode model"),
+    seed: int = typer.Option(0, help="agent seed; robot i's episodes start from seed + i * 100000"),
+    out: Path = typer.Option(Path("runs/fleet"), help="output: OUT/policy (the learner) and OUT/bag (all robots)"),
+    save_every: int = typer.Option(50, help="save the policy every this many fleet episodes"),
+    learning_starts: int = typer.Option(-1, help="random steps before learning (-1: config/rl.yaml)"),
+    save_replay_buffer: bool = typer.Option(False, help="also save OUT/policy/replay_buffer.pkl"),
+    grace: float = typer.Option(10.0, help="seconds between SIGINT and SIGTERM when stopping"),
+) -> None:
+    """N namespaced robot graphs (env_sim, reward_model, labeller) and one learner that trains one
+    policy from all of them, with one recorder for the fleet (launch_scripts/fleet_*.launch.yaml)."""
+    from .fleet import run_fleet
+    from .launcher import LaunchError
+
+    try:
+        code = run_fleet(robots, grace=grace, task=task, episodes=episodes, out=out, mode=mode,
+                         checkpoint=checkpoint or "", seed=seed, save_every=save_every,
+                         learning_starts=learning_starts, save_replay_buffer=save_replay_buffer)
+    except LaunchError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    raise typer.Exit(code)
+
+
 bag_app = typer.Typer(help="Inspect and repair MCAP bags.", no_args_is_help=True)
 app.add_typer(bag_app, name="bag")
 

@@ -246,3 +246,47 @@ def test_sac_on_lunar_lander_keeps_the_papers_two_learning_rates():
     assert model._n_updates == 100   # steps 400..499 trained, one update each
     assert len(run.curve.records) == 1 and np.isfinite(run.curve.records[0].oracle_return)
     assert model.observation_space.shape == (9,)  # 8-D state + the oracle's time-on-pad counter
+
+
+def test_threaded_vec_env_equals_dummy_vec_env():
+    """The fleet's vectorised env gives exactly DummyVecEnv's observations, rewards, dones and
+    infos (terminal observations and resets included)."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from nmrm_ros.ros.topic_vec_env import ThreadedVecEnv
+
+    fns = [lambda i=i: make_reward_env("key", "oracle", seed=10 * i) for i in range(3)]
+    dummy, threaded = DummyVecEnv(fns), ThreadedVecEnv(fns)
+    dummy.seed(3), threaded.seed(3)
+    np.testing.assert_array_equal(dummy.reset(), threaded.reset())
+    actions = np.random.default_rng(0).integers(0, 5, size=(250, 3))
+    for a in actions:  # 2.5 episodes per env
+        want, got = dummy.step(a), threaded.step(a)
+        for w, g in zip(want[:3], got[:3]):
+            np.testing.assert_array_equal(w, g)
+        for w, g in zip(want[3], got[3]):
+            assert set(w) == set(g)
+            for key in w:
+                np.testing.assert_array_equal(w[key], g[key])
+    threaded.close()
+
+
+def test_threaded_vec_env_steps_its_envs_at_once():
+    """Four envs whose step takes 0.2 s: one vectorised step takes about one env's time."""
+    import time
+
+    import gymnasium as gym
+
+    from nmrm_ros.ros.topic_vec_env import ThreadedVecEnv
+
+    class Slow(gym.Wrapper):
+        def step(self, action):
+            time.sleep(0.2)
+            return self.env.step(action)
+
+    vec = ThreadedVecEnv([lambda: Slow(make_reward_env("key", "oracle", seed=0)) for _ in range(4)])
+    vec.reset()
+    t0 = time.monotonic()
+    vec.step(np.zeros(4, dtype=int))
+    assert time.monotonic() - t0 < 0.6  # sequentially: 0.8 s
+    vec.close()

@@ -18,6 +18,15 @@ TrajectoryReturn) and agent.json every `save_every` episodes and at exit (Ctrl-C
 
 No action is sent for a final (terminated/truncated) input. A repeated input (same episode and
 step, e.g. a re-published observation) gets the same action again.
+
+`robots` (a fleet): one agent for several namespaced graphs, e.g. [/robot1, /robot2]: it
+subscribes to each robot's `<robot>/nmrm/...` topics and answers each on its own action topic.
+With policy learn, one policy learns from all of them at once: one TopicEnv per robot, stepped
+concurrently as one SB3 vectorised env (`nmrm_ros.ros.topic_vec_env.ThreadedVecEnv`); `episodes`
+then counts the fleet's episodes, each robot playing ceil(episodes / N) of them, and SB3 makes
+`gradient_steps` per fleet step (N transitions). Episodes of fixed length (the navigation tasks)
+keep the robots in step; with Lunar Lander a robot that has played its share first sends
+zero-observation "after the last episode" steps (not counted as episodes) until the others finish.
 """
 
 from __future__ import annotations
@@ -53,7 +62,14 @@ PARAMETERS = {
     "learning_starts": Param(-1, "policy learn: random steps before learning; -1 = config/rl.yaml", -1),
     "save_replay_buffer": Param(False, "policy learn: also save replay_buffer.pkl"),
     "rl_config": Param("", "policy learn: RL config YAML (default config/rl.yaml)"),
+    "robots": Param([""], "namespaces of the graphs to act in (a fleet, e.g. [/robot1, /robot2]); "
+                          "'' = this node's own"),
 }
+
+
+def robot_topic(robot: str, topic: str) -> str:
+    """`topic` (relative, e.g. nmrm/action) of robot namespace `robot` ('' = the node's own)."""
+    return f"/{robot.strip('/')}/{topic}" if robot.strip("/") else topic
 
 
 class AgentNode(Node):
@@ -76,25 +92,36 @@ class AgentNode(Node):
             self.learner = Learner(self, p)
         elif self.policy != "random":
             raise NodeError(f"unknown policy {self.policy!r}: use 'random', 'sb3' or 'learn'")
-        self.last_key = None
-        self.last_action = None
+        self.robots = list(p["robots"]) or [""]
+        if len(set(self.robots)) != len(self.robots):
+            raise NodeError(f"robots {self.robots} name a namespace twice")
+        n = len(self.robots)
+        self.last_key: list = [None] * n
+        self.last_action: list = [None] * n
         self.sent = 0
         self.dropped = 0
-        self.pub = self.create_publisher(AgentAction, ACTION, STEP_QOS)
-        if self.learner is not None:
-            self.sub = self.create_subscription(RewardStep, REWARD_STEP, self.learner.on_reward_step, STEP_QOS)
-            self.labels_sub = self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN,
-                                                       self.learner.on_label, STEP_QOS)
-        elif p["observe"] == "reward_step":
-            self.sub = self.create_subscription(RewardStep, REWARD_STEP,
-                                                lambda m: self.act(m, m.augmented_state), STEP_QOS)
-        elif p["observe"] == "observation":
-            self.sub = self.create_subscription(EnvObservation, OBSERVATION,
-                                                lambda m: self.act(m, m.state), STEP_QOS)
-        else:
+        self.pubs = [self.create_publisher(AgentAction, robot_topic(r, ACTION), STEP_QOS) for r in self.robots]
+        self.subs: list = []
+        if p["observe"] not in ("reward_step", "observation"):
             raise NodeError(f"unknown observe {p['observe']!r}: use 'reward_step' or 'observation'")
+        for i, robot in enumerate(self.robots):
+            if self.learner is not None:
+                self.subs.append(self.create_subscription(
+                    RewardStep, robot_topic(robot, REWARD_STEP),
+                    lambda m, i=i: self.learner.on_reward_step(m, i), STEP_QOS))
+                self.create_subscription(TrajectoryReturn, robot_topic(robot, TRAJECTORY_RETURN),
+                                         lambda m, i=i: self.learner.on_label(m, i), STEP_QOS)
+            elif p["observe"] == "reward_step":
+                self.subs.append(self.create_subscription(
+                    RewardStep, robot_topic(robot, REWARD_STEP),
+                    lambda m, i=i: self.act(m, m.augmented_state, i), STEP_QOS))
+            else:
+                self.subs.append(self.create_subscription(
+                    EnvObservation, robot_topic(robot, OBSERVATION),
+                    lambda m, i=i: self.act(m, m.state, i), STEP_QOS))
+        self.sub = self.subs[0]
         if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.sub)
+            exit_with_upstream(self, self.subs)
 
     def _load_sb3(self, path: str, algo: str):
         from pathlib import Path
@@ -113,13 +140,13 @@ class AgentNode(Node):
         except Exception as exc:  # noqa: BLE001 - report any load failure as a config error
             raise NodeError(f"cannot load {algo} policy {path}: {exc}") from None
 
-    def act(self, msg, observed) -> None:
+    def act(self, msg, observed, robot: int = 0) -> None:
         self.messages_received += 1
         if msg.terminated or msg.truncated:
             return
         key = (msg.episode, msg.step)
-        if key == self.last_key:
-            action = self.last_action
+        if key == self.last_key[robot]:
+            action = self.last_action[robot]
         else:
             try:
                 obs = as_vector(observed, None, "observation")
@@ -128,8 +155,8 @@ class AgentNode(Node):
                 self.dropped += 1
                 self.get_logger().warning(f"no action for episode {msg.episode} step {msg.step}: {exc}")
                 return
-            self.last_key, self.last_action = key, action
-        self.publish_action(msg.episode, msg.step, action)
+            self.last_key[robot], self.last_action[robot] = key, action
+        self.publish_action(msg.episode, msg.step, action, robot)
 
     def choose(self, obs: np.ndarray) -> list:
         if self.sb3 is not None:
@@ -142,10 +169,10 @@ class AgentNode(Node):
             return [float(self.rng.integers(self.info.action_size))]
         return [float(x) for x in self.rng.uniform(-1.0, 1.0, 2)]
 
-    def publish_action(self, episode: int, step: int, action: list) -> None:
+    def publish_action(self, episode: int, step: int, action: list, robot: int = 0) -> None:
         out = AgentAction(episode=episode, step=step, action=action)
         out.header.stamp = self.get_clock().now().to_msg()
-        self.pub.publish(out)
+        self.pubs[robot].publish(out)
         self.sent += 1
 
     def close(self) -> None:
@@ -176,11 +203,11 @@ class Learner:
         self.log_every = max(1, int(p["log_every"]))
         self.use_hidden = bool(p["observe_hidden"])
         self.save_buffer = bool(p["save_replay_buffer"])
-        self.env = None
+        self.envs: list = []  # one TopicEnv per robot
         self.model = None
         self.thread: threading.Thread | None = None
         self.records: list = []      # (episode id, learnt return, steps, wall time)
-        self.labels: dict = {}       # episode id -> oracle return (TrajectoryReturn)
+        self.labels: dict = {}       # (robot, episode id) -> oracle return (TrajectoryReturn)
         self.lock = threading.Lock()
         self.done = threading.Event()
         self.t0 = time.monotonic()
@@ -190,18 +217,18 @@ class Learner:
                                f"seed {self.seed}, output {self.out}")
 
     # -- node thread -------------------------------------------------------------------------------
-    def on_reward_step(self, msg: RewardStep) -> None:
+    def on_reward_step(self, msg: RewardStep, robot: int = 0) -> None:
         self.node.messages_received += 1
-        if self.env is None:
+        if not self.envs:  # the learner starts at the first step 0 of any robot
             if msg.step != 0 or msg.terminated or msg.truncated:
                 return
             self.source = msg.source
             self.start(len(msg.augmented_state) if self.use_hidden else len(msg.state))
-        self.env.put(msg)
+        self.envs[robot].put(msg)
 
-    def on_label(self, msg: TrajectoryReturn) -> None:
+    def on_label(self, msg: TrajectoryReturn, robot: int = 0) -> None:
         with self.lock:
-            self.labels[int(msg.episode)] = float(msg.return_value)
+            self.labels[(robot, int(msg.episode))] = float(msg.return_value)
 
     def start(self, observation_size: int) -> None:
         import gymnasium as gym
@@ -213,20 +240,26 @@ class Learner:
             space = gym.spaces.Discrete(info.action_size)
         else:
             space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        self.env = TopicEnv(observation_size, space, self.node.publish_action, use_hidden=self.use_hidden,
-                            max_episodes=self.episodes)
+        # each robot's bridge ends after its share of the episodes (see TopicEnv): the learner
+        # stops at the step after the last one, without waiting for an episode that never comes
+        n = len(self.node.robots)
+        share = -(-self.episodes // n)
+        self.envs = [TopicEnv(observation_size, space,
+                              lambda e, t, a, i=i: self.node.publish_action(e, t, a, i),
+                              use_hidden=self.use_hidden, max_episodes=share, robot=i)
+                     for i in range(n)]
         self.thread = threading.Thread(target=self.run, name="learner", daemon=True)
         self.thread.start()
 
     def stop(self) -> None:
         """Called at shutdown: stop the learner (it saves) and wait for it."""
-        if self.env is not None:
-            self.env.stop()
+        for env in self.envs:
+            env.stop()
         if self.thread is not None:
             self.thread.join(timeout=60.0)
         self.node.get_logger().info(f"learner {self.outcome}; {len(self.records)} episode(s), "
-                                    f"{self.env.skipped if self.env else 0} message(s) skipped, "
-                                    f"{self.env.broken if self.env else 0} episode(s) cut short")
+                                    f"{sum(e.skipped for e in self.envs)} message(s) skipped, "
+                                    f"{sum(e.broken for e in self.envs)} episode(s) cut short")
 
     # -- learner thread ----------------------------------------------------------------------------
     def run(self) -> None:
@@ -236,11 +269,13 @@ class Learner:
 
         from ..rl import EpisodeCurveCallback, make_algorithm
         from ..ros.topic_env import LearnerStopped
+        from ..ros.topic_vec_env import ThreadedVecEnv
 
         torch.set_num_threads(int(self.cfg.get("threads", 1)))
         log = self.node.get_logger()
         try:
-            vec = DummyVecEnv([lambda: Monitor(self.env)])
+            monitored = [lambda env=env: Monitor(env) for env in self.envs]
+            vec = ThreadedVecEnv(monitored) if len(monitored) > 1 else DummyVecEnv(monitored)
             self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed)
             callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode)
             self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
@@ -258,7 +293,8 @@ class Learner:
                 self.node.exit_code = 0 if not self.outcome.startswith("failed") else 1
 
     def on_episode(self, rec, info: dict) -> None:
-        self.records.append((info.get("episode_id", -1), rec.learnt_return, rec.steps, time.monotonic() - self.t0))
+        key = (info.get("robot", 0), info.get("episode_id", -1))
+        self.records.append((key, rec.learnt_return, rec.steps, time.monotonic() - self.t0))
         n = len(self.records)
         if n % self.log_every == 0 or n == self.episodes:
             last = self.records[-self.log_every:]
@@ -279,13 +315,16 @@ class Learner:
 
         with self.lock:
             labels = dict(self.labels)
-        curve = LearningCurve([EpisodeRecord(e, labels.get(e, float("nan")), g, steps, wall)
-                               for e, g, steps, wall in self.records])
+        # one robot: the curve's episode column is env_sim's episode id; a fleet: the order in
+        # which its episodes ended
+        fleet = len(self.node.robots) > 1
+        curve = LearningCurve([EpisodeRecord(n if fleet else key[1], labels.get(key, float("nan")), g, steps, wall)
+                               for n, (key, g, steps, wall) in enumerate(self.records)])
         save_agent(self.model, curve, self.out, {
             "task": self.task, "algorithm": self.algo, "seed": self.seed, "reward_source": self.source,
             "reward": ("oracle" if self.use_hidden else "oracle-no-hidden") if self.source == "oracle" else "model",
             "episodes": self.episodes, "episodes_done": len(self.records), "observe_hidden": self.use_hidden,
-            "outcome": self.outcome, "config": self.cfg})
+            "outcome": self.outcome, "config": self.cfg, "robots": self.node.robots})
         if self.save_buffer:
             self.model.save_replay_buffer(self.out / "replay_buffer.pkl")
         self.node.get_logger().info(f"saved {self.out}/policy.zip after {len(self.records)} episode(s)")

@@ -101,7 +101,7 @@ class EpisodeCurveCallback(BaseCallback):
             self._steps = np.zeros(len(dones), dtype=np.int64)
         self._steps += 1
         for i, (done, info) in enumerate(zip(dones, self.locals["infos"])):
-            if not done:
+            if not done or info.get("after_last_episode"):  # a topic bridge with no episode left
                 continue
             rec = EpisodeRecord(len(self.curve.records), float(info.get("oracle_return", np.nan)),
                                 float(info.get("learnt_return", np.nan)), int(self._steps[i]),

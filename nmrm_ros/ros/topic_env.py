@@ -38,19 +38,20 @@ class LearnerStopped(Exception):
 class TopicEnv(gym.Env):
     """observation_size: length of what is observed; action_space: the task's; use_hidden: observe
     RewardStep.augmented_state (else .state); timeout: seconds without any message before
-    TimeoutError (0 = wait for ever)."""
+    TimeoutError (0 = wait for ever); robot: its index in a fleet (reported in the infos)."""
 
     metadata = {"render_modes": []}
 
     def __init__(self, observation_size: int, action_space: gym.Space,
                  publish_action: Callable[[int, int, list], None], use_hidden: bool = True,
-                 timeout: float = 0.0, max_episodes: int = 0) -> None:
+                 timeout: float = 0.0, max_episodes: int = 0, robot: int = 0) -> None:
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(observation_size,), dtype=np.float32)
         self.action_space = action_space
         self.publish_action = publish_action
         self.use_hidden = use_hidden
         self.timeout = float(timeout)
         self.max_episodes = int(max_episodes)
+        self.robot = int(robot)  # index of this bridge in a fleet (in every info as "robot")
         self.episodes_done = 0
         self.stop_event = threading.Event()
         self.inbox: queue.Queue = queue.Queue()
@@ -103,7 +104,7 @@ class TopicEnv(gym.Env):
         self.episode, self.t = int(msg.episode), 0
         self._pending, self._return = float(msg.reward), 0.0
         self._last_obs = self._observe(msg)
-        return self._last_obs, {"episode_id": self.episode}
+        return self._last_obs, {"episode_id": self.episode, "robot": self.robot}
 
     def _after_last_episode(self) -> bool:
         return bool(self.max_episodes) and self.episodes_done >= self.max_episodes
@@ -129,7 +130,7 @@ class TopicEnv(gym.Env):
                 reward = self._pending
                 self._return += reward
                 return self._last_obs, reward, False, True, {
-                    "broken": True, "episode_id": self.episode, "learnt_reward": reward,
+                    "broken": True, "episode_id": self.episode, "robot": self.robot, "learnt_reward": reward,
                     "learnt_return": self._return}
             self.skipped += 1
         reward = self._pending
@@ -137,7 +138,7 @@ class TopicEnv(gym.Env):
         self.t += 1
         self._pending = float(msg.reward)
         self._last_obs = self._observe(msg)
-        info = {"episode_id": self.episode, "learnt_reward": reward}
+        info = {"episode_id": self.episode, "robot": self.robot, "learnt_reward": reward}
         if msg.terminated or msg.truncated:
             info["learnt_return"] = self._return
             self.episodes_done += 1
