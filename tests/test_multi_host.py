@@ -8,95 +8,37 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from graph_helpers import REPO, executable
+from netns_hosts import Hosts, HostsUnavailable, in_host, make_hosts, remove_hosts
 from nmrm_ros.bags import iter_decoded, load_bag_dataset
 
 EPISODES = 3
 
 
-@dataclass
-class Hosts:
-    robot: str
-    robot_ip: str
-    workstation: str
-    workstation_ip: str
-    robot_link: str
-    workstation_link: str
-
-
-def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, text=True)
-
-
-def _make_hosts(routed: bool):
-    """Two namespaces on one link (a LAN: multicast reaches the other side), or, if `routed`, on
-    two subnets joined by a router namespace (unicast is forwarded, multicast is not)."""
-    if os.geteuid() != 0:
-        pytest.skip("creating network namespaces needs root")
-    if shutil.which("ip") is None:
-        pytest.skip("needs iproute2's `ip`")
-    tag = os.getpid() % 100000
-    robot, workstation, router = f"nmrm{tag}r", f"nmrm{tag}w", f"nmrm{tag}x"
-    link_r, link_w = f"nv{tag}r", f"nv{tag}w"
-    a, b = 1 + tag % 120, 121 + tag % 120
-    namespaces = [robot, workstation] + ([router] if routed else [])
-    if routed:
-        hosts = Hosts(robot, f"10.231.{a}.1", workstation, f"10.231.{b}.1", link_r, link_w)
-    else:
-        hosts = Hosts(robot, f"10.231.{a}.1", workstation, f"10.231.{a}.2", link_r, link_w)
+def _hosts(routed: bool):
     try:
-        for ns in namespaces:
-            _ip("netns", "add", ns)
-            _ip("-n", ns, "link", "set", "lo", "up")
-        if routed:
-            for ns, link, net in ((robot, link_r, a), (workstation, link_w, b)):
-                _ip("link", "add", link, "type", "veth", "peer", "name", link + "x")
-                _ip("link", "set", link, "netns", ns)
-                _ip("link", "set", link + "x", "netns", router)
-                _ip("-n", ns, "addr", "add", f"10.231.{net}.1/24", "dev", link)
-                _ip("-n", router, "addr", "add", f"10.231.{net}.254/24", "dev", link + "x")
-                _ip("-n", ns, "link", "set", link, "up")
-                _ip("-n", router, "link", "set", link + "x", "up")
-                _ip("-n", ns, "route", "add", "default", "via", f"10.231.{net}.254")
-            subprocess.run(["ip", "netns", "exec", router, "sh", "-c", "echo 1 > /proc/sys/net/ipv4/ip_forward"],
-                           check=True, capture_output=True, text=True)
-        else:
-            _ip("link", "add", link_r, "type", "veth", "peer", "name", link_w)
-            for ns, link, address in ((robot, link_r, hosts.robot_ip), (workstation, link_w, hosts.workstation_ip)):
-                _ip("link", "set", link, "netns", ns)
-                _ip("-n", ns, "addr", "add", f"{address}/24", "dev", link)
-                _ip("-n", ns, "link", "set", link, "up")
-                _ip("-n", ns, "route", "add", "default", "dev", link)
-    except subprocess.CalledProcessError as exc:
-        for ns in namespaces:
-            subprocess.run(["ip", "netns", "del", ns], capture_output=True)
-        pytest.skip(f"cannot create network namespaces here: {exc.stderr.strip()}")
-    return hosts, namespaces
+        hosts, namespaces = make_hosts(routed=routed)
+    except HostsUnavailable as exc:
+        pytest.skip(str(exc))
+    yield hosts
+    remove_hosts(namespaces)
 
 
 @pytest.fixture
 def lan_hosts():
-    hosts, namespaces = _make_hosts(routed=False)
-    yield hosts
-    for ns in namespaces:
-        subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+    yield from _hosts(routed=False)
 
 
 @pytest.fixture
 def routed_hosts():
-    hosts, namespaces = _make_hosts(routed=True)
-    yield hosts
-    for ns in namespaces:
-        subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+    yield from _hosts(routed=True)
 
 
 def _env(**extra) -> dict:
@@ -107,9 +49,7 @@ def _env(**extra) -> dict:
     return env
 
 
-def _in(ns: str, env: dict, *cmd: str) -> subprocess.Popen:
-    return subprocess.Popen(["ip", "netns", "exec", ns, *cmd], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+_in = in_host
 
 
 def _finish(proc: subprocess.Popen, timeout: float) -> tuple:
