@@ -8,6 +8,13 @@ bash "$ROOT/scripts/setup_env.sh"
 # those tests skip, saying why, where the kit (outside this repository) is absent
 KIT="$ROOT/../shared/tools/ros2-cli-jazzy/install.sh"
 if [ -f "$KIT" ]; then bash "$KIT" "${NMRM_VENV:-$ROOT/.venv}"; else echo "[test] no $KIT: real ros2 CLI tests will skip"; fi
+# the browser of the labelling page's test: Debian's Chromium (Playwright drives it; it downloads
+# no browser of its own); installed with apt where we are root, else that test skips, saying why
+if ! command -v chromium >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+  echo "[test] installing chromium (apt)"
+  (apt-get install -y -q chromium >/dev/null 2>&1 || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium >/dev/null 2>&1; }) \
+    || echo "[test] could not install chromium: the browser test will skip"
+fi
 source "$ROOT/scripts/ros_env.sh"
 cd "$ROOT"
 exec "$NMRM_VENV/bin/python" -m pytest "$@"

@@ -1,0 +1,11 @@
+"""Labelling by people: the queue of finished episodes, the labels bag, and the web page's server.
+
+Plain Python (aiohttp for the page); the `labeller_web` node is the ROS adapter around them.
+"""
+
+from .label_store import LabelStore, StoredLabel
+from .queue import Episode, LabelError, LabelQueue, return_range
+from .web_app import WebServer, make_app
+
+__all__ = ["Episode", "LabelError", "LabelQueue", "LabelStore", "StoredLabel", "WebServer",
+           "make_app", "return_range"]

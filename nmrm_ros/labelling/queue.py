@@ -1,0 +1,119 @@
+"""The episodes waiting for a person's label, and the labels given (no ROS).
+
+An episode is keyed by (task, episode) as in the labeller contract. `LabelQueue` holds finished
+episodes (states (L+1, state_size), the final one included) and the labels of this labeller;
+`pending()` is the queue (unlabelled, not skipped), oldest first; `label()` validates a return
+against the task's range and records it (a second label of the same episode is a correction: the
+latest one counts, for training too).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..tasks import task_info
+
+#: returns a label may take, per task: T = 100 steps of rewards in [0, 1] (Timer: -1 for each of
+#: the first 50, +1 after);
+#: Lunar Lander's per-step rewards are bounded by its oracle's terms, returns stay within ±1000
+RETURN_RANGES = {"timer": (-50.0, 50.0), "moving": (0.0, 100.0), "key": (0.0, 100.0),
+                 "charger": (0.0, 100.0), "lunar_lander": (-1000.0, 1000.0)}
+
+
+class LabelError(ValueError):
+    """A label that cannot be accepted (unknown episode, not a finite number, out of range)."""
+
+
+def return_range(task: str) -> tuple:
+    """(low, high) of the returns a label of `task` may take."""
+    task_info(task)  # validates the name
+    return RETURN_RANGES[task]
+
+
+@dataclass
+class Episode:
+    task: str
+    episode: int
+    states: np.ndarray          # (L + 1, state_size): steps 0..L, the last one final
+    finished_at: float          # wall time (s since the epoch) of the final observation
+    skipped: bool = False
+
+    @property
+    def length(self) -> int:
+        return len(self.states) - 1
+
+
+@dataclass
+class Label:
+    episode: int
+    value: float
+    at: float                   # wall time, s since the epoch
+    corrections: int = 0        # labels of this episode before this one
+
+
+@dataclass
+class LabelQueue:
+    task: str
+    max_episodes: int = 1000    # oldest finished episodes are dropped beyond this
+    episodes: dict = field(default_factory=dict)    # episode id -> Episode
+    labels: dict = field(default_factory=dict)      # episode id -> latest Label
+    done_before: set = field(default_factory=set)   # labelled in an earlier session (not asked again)
+
+    def __post_init__(self) -> None:
+        self.low, self.high = return_range(self.task)
+        self.lock = threading.Lock()
+
+    def add(self, episode: int, states: np.ndarray, finished_at: float | None = None) -> bool:
+        """A finished episode; False (and not queued) if it was labelled already."""
+        with self.lock:
+            if episode in self.labels or episode in self.done_before:
+                return False
+            self.episodes[episode] = Episode(self.task, int(episode), np.asarray(states, np.float32),
+                                             time.time() if finished_at is None else finished_at)
+            while len(self.episodes) > self.max_episodes:
+                del self.episodes[min(self.episodes, key=lambda e: self.episodes[e].finished_at)]
+            return True
+
+    def pending(self) -> list:
+        """Unlabelled, unskipped episodes, oldest first."""
+        with self.lock:
+            waiting = [e for e in self.episodes.values()
+                       if e.episode not in self.labels and not e.skipped]
+        return sorted(waiting, key=lambda e: e.finished_at)
+
+    def get(self, episode: int) -> Episode:
+        with self.lock:
+            if episode not in self.episodes:
+                raise LabelError(f"no episode {episode} here")
+            return self.episodes[episode]
+
+    def validate(self, value) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise LabelError(f"a return must be a finite number, got {value!r}")
+        if not self.low <= value <= self.high:
+            raise LabelError(f"return {value} is outside [{self.low:g}, {self.high:g}] for {self.task}")
+        return float(value)
+
+    def label(self, episode: int, value) -> tuple:
+        """Record a label (or a correction); returns (Label, Episode)."""
+        value = self.validate(value)
+        ep = self.get(episode)
+        with self.lock:
+            before = self.labels.get(episode)
+            record = Label(episode, value, time.time(), 0 if before is None else before.corrections + 1)
+            self.labels[episode] = record
+            ep.skipped = False
+        return record, ep
+
+    def skip(self, episode: int) -> None:
+        self.get(episode).skipped = True
+
+    def history(self) -> list:
+        """The labels given in this session, newest first."""
+        with self.lock:
+            return sorted(self.labels.values(), key=lambda r: r.at, reverse=True)

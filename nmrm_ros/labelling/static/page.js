@@ -1,0 +1,146 @@
+// The labelling page: the queue, an episode's animated path over the arena, the label form and
+// the labels given. Every value from the server is written with textContent or as an SVG
+// attribute, never parsed as HTML.
+"use strict";
+const token = new URLSearchParams(location.search).get("token") || "";
+const SVG = "http://www.w3.org/2000/svg";
+let info = null, current = null, frame = 0, timer = null;
+
+function api(path, body) {
+  const opts = {headers: {"X-Token": token}};
+  if (body !== undefined) {
+    opts.method = "POST";
+    opts.headers["Content-Type"] = "application/json";
+    opts.body = JSON.stringify(body);
+  }
+  return fetch(path, opts).then(async (r) => {
+    const data = await r.json();
+    if (!r.ok) throw new Error(data.error || r.statusText);
+    return data;
+  });
+}
+
+function el(tag, text) { const e = document.createElement(tag); if (text !== undefined) e.textContent = text; return e; }
+function showError(e) { document.getElementById("error").textContent = e ? String(e.message || e) : ""; }
+
+function toView(x, y) {  // arena coordinates -> SVG (y up)
+  const [x0, x1, y0, y1] = info.arena.bounds;
+  return [100 * (x - x0) / (x1 - x0), 100 - 100 * (y - y0) / (y1 - y0)];
+}
+
+function drawArena() {
+  const svg = document.getElementById("arena");
+  svg.replaceChildren();
+  for (const [x0, x1, y0, y1, kind] of info.arena.zones) {
+    const [ax, ay] = toView(x0, y1), [bx, by] = toView(x1, y0);
+    const r = document.createElementNS(SVG, "rect");
+    r.setAttribute("x", ax); r.setAttribute("y", ay);
+    r.setAttribute("width", bx - ax); r.setAttribute("height", by - ay);
+    r.setAttribute("class", "zone zone-" + kind.replace(/[^a-z]+/g, "-"));
+    const t = document.createElementNS(SVG, "title"); t.textContent = kind; r.appendChild(t);
+    svg.appendChild(r);
+  }
+  return svg;
+}
+
+function drawEpisode() {
+  const svg = drawArena();
+  if (!current) return;
+  const [ix, iy] = info.arena.xy;
+  const shown = current.states.slice(0, frame + 1);
+  const path = document.createElementNS(SVG, "polyline");
+  path.setAttribute("class", "path");
+  path.setAttribute("points", shown.map((s) => toView(s[ix], s[iy]).join(",")).join(" "));
+  svg.appendChild(path);
+  const [cx, cy] = toView(shown[shown.length - 1][ix], shown[shown.length - 1][iy]);
+  const dot = document.createElementNS(SVG, "circle");
+  dot.setAttribute("class", "agent"); dot.setAttribute("cx", cx); dot.setAttribute("cy", cy); dot.setAttribute("r", 1.5);
+  svg.appendChild(dot);
+  document.getElementById("scrub").value = frame;
+  document.getElementById("step").textContent = `step ${frame} / ${current.length}`;
+}
+
+function stop() { if (timer) { clearInterval(timer); timer = null; } }
+function play() {
+  stop();
+  if (!current) return;
+  if (frame >= current.length) frame = 0;
+  timer = setInterval(() => { if (frame >= current.length) { stop(); return; } frame += 1; drawEpisode(); }, 40);
+}
+
+async function openEpisode(episode) {
+  stop(); showError(null);
+  current = await api(`/api/episode/${episode}`);
+  frame = current.length;
+  document.getElementById("title").textContent = `Episode ${current.episode} (${current.length} steps)`;
+  const scrub = document.getElementById("scrub");
+  scrub.max = current.length;
+  document.getElementById("return").value = current.label === null ? "" : current.label;
+  drawEpisode();
+  refresh(false);
+}
+
+async function refresh(openFirst) {
+  const [queue, labels] = await Promise.all([api("/api/queue"), api("/api/labels")]);
+  const list = document.getElementById("queue");
+  list.replaceChildren();
+  for (const e of queue.episodes) {
+    const li = el("li", `episode ${e.episode} (${e.length} steps) — ${e.why}`);
+    li.dataset.episode = e.episode;
+    if (current && current.episode === e.episode) li.className = "current";
+    li.addEventListener("click", () => openEpisode(e.episode).catch(showError));
+    list.appendChild(li);
+  }
+  document.getElementById("count").textContent = `(${queue.episodes.length})`;
+  const body = document.getElementById("history");
+  body.replaceChildren();
+  for (const l of labels.labels) {
+    const tr = el("tr");
+    tr.append(el("td", l.episode), el("td", l.return), el("td", l.corrections));
+    const fix = el("button", "correct"); fix.type = "button";
+    fix.addEventListener("click", () => openEpisode(l.episode).catch(showError));
+    const td = el("td"); td.appendChild(fix); tr.appendChild(td);
+    body.appendChild(tr);
+  }
+  if (openFirst && !current && queue.episodes.length) await openEpisode(queue.episodes[0].episode);
+}
+
+async function submit(ev) {
+  ev.preventDefault();
+  if (!current) return;
+  const raw = document.getElementById("return").value;
+  const value = Number(raw);
+  try {
+    if (raw.trim() === "" || !Number.isFinite(value)) throw new Error("enter a number");
+    const res = await api("/api/label", {episode: current.episode, return: value});
+    document.getElementById("status").textContent = `labelled episode ${res.episode}: ${res.return}`;
+    current = null;
+    await refresh(true);
+  } catch (e) { showError(e); }
+}
+
+async function skip() {
+  if (!current) return;
+  try { await api("/api/skip", {episode: current.episode}); current = null; await refresh(true); }
+  catch (e) { showError(e); }
+}
+
+async function main() {
+  info = await api("/api/info");
+  document.getElementById("who").textContent = `${info.labeller} · task ${info.task}`;
+  document.getElementById("ordering").textContent = `ordered: ${info.ordering}`;
+  const [lo, hi] = info.range;
+  const input = document.getElementById("return");
+  input.min = lo; input.max = hi;
+  document.getElementById("range").textContent = `between ${lo} and ${hi}`;
+  document.getElementById("label-form").addEventListener("submit", submit);
+  document.getElementById("skip").addEventListener("click", skip);
+  document.getElementById("play").addEventListener("click", play);
+  document.getElementById("pause").addEventListener("click", stop);
+  document.getElementById("scrub").addEventListener("input", (e) => { stop(); frame = Number(e.target.value); drawEpisode(); });
+  drawArena();
+  await refresh(true);
+  setInterval(() => refresh(!current).catch(showError), 2000);
+}
+
+main().catch(showError);

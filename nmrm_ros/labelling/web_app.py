@@ -1,0 +1,187 @@
+"""The labelling page's HTTP server (aiohttp), running in a thread of its own beside a ROS node.
+
+Routes (JSON unless said; every one behind the access token when there is one):
+  GET  /                      the page (static/page.html, page.js, page.css)
+  GET  /api/info              task, labeller, return range, the arena's zones, how the queue is ordered
+  GET  /api/queue             finished unlabelled episodes, in the order they are asked
+  GET  /api/episode/{n}       one episode's states (L + 1, state size) and its label if any
+  POST /api/label             {"episode": n, "return": x}: label (again: a correction)
+  POST /api/skip              {"episode": n}
+  GET  /api/labels            this session's labels, newest first
+
+Safety: the token (if any) must come with every request, as the `X-Token` header or a `token`
+query parameter (compared in constant time); bodies over `max_body` bytes are refused (413);
+labels are validated (a finite number within the task's range, an episode that is here); every
+answer is JSON or a static file with a Content-Security-Policy that allows our own scripts only,
+and the page writes every value with textContent, never as HTML.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import threading
+from importlib import resources
+from typing import Callable
+
+from aiohttp import web
+
+from .queue import LabelError, LabelQueue
+
+CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; connect-src 'self'; img-src 'self'; "
+       "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
+STATIC = {"page.js": "text/javascript", "page.css": "text/css", "page.html": "text/html"}
+
+
+def _error(status: int, message: str) -> web.Response:
+    return web.json_response({"error": message}, status=status)
+
+
+def _arena(task: str) -> dict:
+    """What the page draws under a path: the arena's bounds and zones (x0, x1, y0, y1, kind)."""
+    if task == "lunar_lander":
+        return {"bounds": [-1.5, 1.5, -0.2, 1.6], "zones": [[-0.2, 0.2, -0.05, 0.0, "pad"]],
+                "xy": [0, 1]}
+    from ..tasks.navigation import CHARGE_Y_MAX, KEY_ZONE, SPAWN_ZONES, TREASURE_ZONE
+
+    def zone(z, kind):
+        return [z.x_min, z.x_max, z.y_min, z.y_max, kind]
+
+    zones = [zone(z, "spawn") for z in SPAWN_ZONES]
+    zones.append([0.0, 1.0, TREASURE_ZONE.y_min, TREASURE_ZONE.y_max, "treasure row"] if task == "moving"
+                 else zone(TREASURE_ZONE, "treasure"))
+    if task == "key":
+        zones.append(zone(KEY_ZONE, "key"))
+    if task == "charger":
+        zones.append([0.0, 1.0, 0.0, CHARGE_Y_MAX, "charger"])
+    return {"bounds": [0.0, 1.0, 0.0, 1.0], "zones": zones, "xy": [0, 1]}
+
+
+def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | None = None,
+             max_body: int = 4096) -> web.Application:
+    """The page's application. `on_label(label, episode)` is called (in the server's thread) for
+    every accepted label, before the answer is sent: it publishes and stores it. `info`: extra
+    fields of /api/info (e.g. the labeller id)."""
+
+    @web.middleware
+    async def guard(request: web.Request, handler):
+        if token:
+            given = request.headers.get("X-Token") or request.query.get("token") or ""
+            if not hmac.compare_digest(given.encode(), token.encode()):
+                return _error(401, "missing or wrong access token")
+        try:
+            response = await handler(request)
+        except web.HTTPRequestEntityTooLarge:
+            response = _error(413, f"request body over {max_body} bytes")
+        except web.HTTPException as exc:
+            response = _error(exc.status, exc.reason)
+        response.headers["Content-Security-Policy"] = CSP
+        response.headers["X-Content-Type-Options"] = "nosniff"
+        response.headers["Referrer-Policy"] = "no-referrer"
+        response.headers["Cache-Control"] = "no-store"
+        return response
+
+    async def static(request: web.Request) -> web.Response:
+        name = request.match_info.get("name", "page.html")
+        if name not in STATIC:
+            return _error(404, "no such file")
+        body = resources.files(__package__).joinpath("static", name).read_text()
+        return web.Response(text=body, content_type=STATIC[name])
+
+    async def api_info(request: web.Request) -> web.Response:
+        return web.json_response({"task": queue.task, "range": [queue.low, queue.high],
+                                  "arena": _arena(queue.task), "ordering": "oldest first", **info})
+
+    async def api_queue(request: web.Request) -> web.Response:
+        return web.json_response({"episodes": [
+            {"episode": e.episode, "length": e.length, "finished_at": e.finished_at,
+             "why": "oldest first"} for e in queue.pending()]})
+
+    async def api_episode(request: web.Request) -> web.Response:
+        try:
+            ep = queue.get(int(request.match_info["episode"]))
+        except LabelError as exc:
+            return _error(404, str(exc))
+        label = queue.labels.get(ep.episode)
+        return web.json_response({"episode": ep.episode, "length": ep.length,
+                                  "states": ep.states.astype(float).round(5).tolist(),
+                                  "label": None if label is None else label.value})
+
+    async def _body(request: web.Request) -> dict:
+        if request.content_length is not None and request.content_length > max_body:
+            raise web.HTTPRequestEntityTooLarge(max_size=max_body, actual_size=request.content_length)
+        raw = await request.read()  # also refused past client_max_size
+        try:
+            body = json.loads(raw)
+        except (ValueError, UnicodeDecodeError):
+            raise LabelError("the body is not JSON") from None
+        if not isinstance(body, dict):
+            raise LabelError("the body must be a JSON object")
+        episode = body.get("episode")
+        if isinstance(episode, bool) or not isinstance(episode, int):
+            raise LabelError(f"'episode' must be an integer, got {episode!r}")
+        return body
+
+    async def api_label(request: web.Request) -> web.Response:
+        try:
+            body = await _body(request)
+            if "return" not in body:
+                raise LabelError("missing 'return'")
+            label, episode = queue.label(body["episode"], body["return"])
+        except LabelError as exc:
+            return _error(400, str(exc))
+        on_label(label, episode)
+        return web.json_response({"episode": label.episode, "return": label.value,
+                                  "corrections": label.corrections})
+
+    async def api_skip(request: web.Request) -> web.Response:
+        try:
+            body = await _body(request)
+            queue.skip(body["episode"])
+        except LabelError as exc:
+            return _error(400, str(exc))
+        return web.json_response({"episode": body["episode"], "skipped": True})
+
+    async def api_labels(request: web.Request) -> web.Response:
+        return web.json_response({"labels": [
+            {"episode": r.episode, "return": r.value, "at": r.at, "corrections": r.corrections}
+            for r in queue.history()]})
+
+    app = web.Application(middlewares=[guard], client_max_size=max_body)
+    app.add_routes([web.get("/", static), web.get("/static/{name}", static),
+                    web.get("/api/info", api_info), web.get("/api/queue", api_queue),
+                    web.get(r"/api/episode/{episode:\d+}", api_episode),
+                    web.post("/api/label", api_label), web.post("/api/skip", api_skip),
+                    web.get("/api/labels", api_labels)])
+    return app
+
+
+class WebServer:
+    """Serves `app` on (host, port) from a thread with its own event loop. `start()` returns once
+    the socket is bound (`port` then holds the real port, e.g. after port 0); `stop()` closes it."""
+
+    def __init__(self, app: web.Application, host: str = "127.0.0.1", port: int = 8080) -> None:
+        self.app, self.host, self.port = app, host, port
+        self.loop = asyncio.new_event_loop()
+        self.runner: web.AppRunner | None = None
+        self.thread = threading.Thread(target=self.loop.run_forever, name="labeller-web", daemon=True)
+
+    def start(self, timeout: float = 10.0) -> None:
+        self.thread.start()
+        asyncio.run_coroutine_threadsafe(self._start(), self.loop).result(timeout)
+
+    async def _start(self) -> None:
+        self.runner = web.AppRunner(self.app, access_log=None)
+        await self.runner.setup()
+        site = web.TCPSite(self.runner, self.host, self.port)
+        await site.start()
+        self.port = site._server.sockets[0].getsockname()[1]
+
+    def stop(self, timeout: float = 5.0) -> None:
+        if self.runner is not None and self.thread.is_alive():
+            try:
+                asyncio.run_coroutine_threadsafe(self.runner.cleanup(), self.loop).result(timeout)
+            finally:
+                self.loop.call_soon_threadsafe(self.loop.stop)
+                self.thread.join(timeout)

@@ -1,0 +1,129 @@
+"""labeller_web: a person labels episodes on a local web page; each label is published and stored.
+
+Follows episodes on `nmrm/observation` exactly as the labeller contract says (README.md; the
+oracle labeller does the same): an episode is complete at its final observation, episodes that
+could not be followed in full are not offered. Finished episodes wait in a queue on the page
+(http://HOST:PORT/), oldest first; the person watches one (its path over the arena, play / pause /
+scrub) and enters its return (a number within the task's range, shown on the page) or skips it.
+
+Every label is published at once as TrajectoryReturn with `labeller` = person/<person>, and
+written and flushed to a labels-only bag in `labels_dir` (one bag per session), so a crash or
+Ctrl-C loses no label. A second label of an episode is a correction: a new TrajectoryReturn;
+training uses the latest label per labeller and episode. At start the node reads `labels_dir`
+(repairing a session that was killed) and does not ask again for episodes labelled before.
+
+Safety: binds 127.0.0.1 unless `host` says otherwise; on any other address every request needs
+the access token (`token`, or one generated and printed at start); bodies over 4 KiB are refused.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
+
+from ..ros.episodes import EpisodeFollower, Kind
+from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, require_task,
+                             run_node)
+from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+PARAMETERS = {
+    "task": Param("key", "task of the episodes to label"),
+    "person": Param("anonymous", "who labels: the labels' labeller id is person/<person>"),
+    "host": Param("127.0.0.1", "address the page is served on (not loopback: a token is required)"),
+    "port": Param(8080, "TCP port of the page (0: any free port, printed at start)", 0),
+    "token": Param("", "access token; '' = none on 127.0.0.1, generated and printed on other addresses"),
+    "require_token": Param(False, "require a token even on 127.0.0.1"),
+    "labels_dir": Param("labels", "directory of this labeller's labels bags (one per session)"),
+    "max_episodes": Param(1000, "finished episodes kept for labelling (oldest dropped)", 1),
+    "exit_with_upstream": Param(False, "exit when the observation topic's publishers are gone"),
+}
+
+
+class LabellerWebNode(Node):
+    def __init__(self) -> None:
+        self.exit_code = None
+        self.messages_received = 0
+        super().__init__("labeller_web")
+        p = declare_parameters(self, PARAMETERS)
+        from ..labelling import LabelQueue, LabelStore, WebServer, make_app
+
+        self.info = require_task(p["task"])
+        self.task = p["task"]
+        person = str(p["person"]).strip()
+        if not person or "/" in person or len(person) > 64:
+            raise NodeError(f"person must be a short name without '/', got {person!r}")
+        self.labeller = f"person/{person}"
+        token = str(p["token"])
+        if not token and (p["host"] not in LOOPBACK or p["require_token"]):
+            token = secrets.token_urlsafe(24)
+        self.queue = LabelQueue(self.task, max_episodes=int(p["max_episodes"]))
+        topic = self.resolve_topic_name(TRAJECTORY_RETURN)
+        self.store = LabelStore(p["labels_dir"], self.labeller, topic=topic)
+        self.queue.done_before = self.store.labelled_episodes(self.task)
+        for session in self.store.repaired:
+            self.get_logger().warning(f"repaired the labels bag of an interrupted session: {session}")
+        self.follower = EpisodeFollower()
+        self.states: list = []
+        self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
+        self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
+        app = make_app(self.queue, self.on_label, {"labeller": self.labeller}, token=token or None)
+        self.server = WebServer(app, p["host"], int(p["port"]))
+        try:
+            self.server.start()
+        except OSError as exc:
+            self.store.close()
+            raise NodeError(f"cannot serve on {p['host']}:{p['port']}: {exc.strerror or exc}") from None
+        url = f"http://{p['host']}:{self.server.port}/" + (f"?token={token}" if token else "")
+        self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller {self.labeller}, "
+                               f"{len(self.queue.done_before)} episode(s) labelled before, labels to "
+                               f"{self.store.path})")
+        if p["exit_with_upstream"]:
+            exit_with_upstream(self, self.sub)
+
+    # -- episodes (ROS thread) ---------------------------------------------------------------------
+    def on_observation(self, msg: EnvObservation) -> None:
+        self.messages_received += 1
+        kind, state, why = self.follower.follow(msg, self.task, self.info.state_size)
+        if kind in (Kind.DUPLICATE, Kind.BROKEN):
+            if kind is Kind.BROKEN and self.follower.just_broke:
+                self.get_logger().warning(f"episode {msg.episode} not offered for labelling: {why}")
+            return
+        if kind is Kind.START:
+            self.states = []
+        self.states.append(state)
+        if msg.terminated or msg.truncated:
+            self.follower.finish()
+            if msg.step > 0 and self.queue.add(int(msg.episode), np.stack(self.states)):
+                self.get_logger().info(f"episode {msg.episode} ({msg.step} steps) waits for a label")
+            self.states = []
+
+    # -- labels (web server's thread) --------------------------------------------------------------
+    def on_label(self, label, episode) -> None:
+        stamp = time.time_ns()
+        self.store.append(self.task, episode.episode, episode.length, label.value, stamp)
+        out = TrajectoryReturn(task=self.task, episode=episode.episode, length=episode.length,
+                               return_value=float(label.value), labeller=self.labeller)
+        out.header.stamp.sec, out.header.stamp.nanosec = stamp // 10**9, stamp % 10**9
+        self.return_pub.publish(out)
+        what = "corrected" if label.corrections else "labelled"
+        self.get_logger().info(f"{what} episode {episode.episode}: return {label.value:g}")
+
+    def close(self) -> None:
+        self.server.stop()
+        self.store.close()
+        self.get_logger().info(f"{self.store.written} label(s) this session, in {self.store.path}")
+
+
+def main(args=None) -> int:
+    return run_node(LabellerWebNode, "labeller_web", __doc__.strip().splitlines()[0], PARAMETERS, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,247 @@
+"""labeller_web: a person labels episodes on a web page. The node runs as a real process beside a
+real env_sim; requests go over HTTP; the page is checked in a real (headless) Chromium."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graph_helpers import Capture, executable, finish, start
+from nmrm_ros.bags import iter_decoded
+from nmrm_ros.labelling import LabelError, LabelQueue, LabelStore
+
+ARTEFACTS = Path(os.environ.get("NMRM_TEST_ARTEFACTS", Path(__file__).resolve().parents[1] / "build" / "test_artefacts"))
+
+
+# -- core (no ROS) -------------------------------------------------------------------------------
+def test_queue_validates_labels_and_keeps_corrections():
+    q = LabelQueue("timer")
+    q.add(3, np.zeros((101, 2)))
+    q.add(1, np.zeros((101, 2)), finished_at=0.0)
+    assert [e.episode for e in q.pending()] == [1, 3]  # oldest first
+    for bad in (float("nan"), math.inf, "12", True, None, -50.5, 50.01):
+        with pytest.raises(LabelError):
+            q.label(3, bad)
+    with pytest.raises(LabelError, match="no episode 7"):
+        q.label(7, 1.0)
+    assert q.label(3, -50)[0].corrections == 0
+    assert q.label(3, 12.5)[0].corrections == 1  # a correction: the latest counts
+    assert q.labels[3].value == 12.5 and [e.episode for e in q.pending()] == [1]
+    assert not q.add(3, np.zeros((101, 2)))  # labelled: not asked again
+
+
+def test_label_store_keeps_labels_of_a_killed_session(tmp_path):
+    """Three labels written, then the process is killed (-9) before closing its bag: the next
+    session repairs that bag and reads all three."""
+    code = ("import os, signal; from nmrm_ros.labelling import LabelStore\n"
+            f"s = LabelStore({str(tmp_path)!r}, 'person/bob')\n"
+            "for e in range(3): s.append('key', e, 100, float(e))\n"
+            "os.kill(os.getpid(), signal.SIGKILL)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    store = LabelStore(tmp_path, "person/bob")
+    store.close()
+    assert len(store.repaired) == 1
+    assert [(s.episode, s.value) for s in store.earlier] == [(0, 0.0), (1, 1.0), (2, 2.0)]
+    assert store.labelled_episodes("key") == {0, 1, 2} and store.labelled_episodes("timer") == set()
+
+
+# -- the node ------------------------------------------------------------------------------------
+class WebNode:
+    """labeller_web as a process (port 0), its output collected, its URL read from its log."""
+
+    def __init__(self, labels_dir: Path, **params) -> None:
+        self.proc = start("labeller_web", port=0, labels_dir=labels_dir, person="alice", **params)
+        self.lines: list = []
+        self.url = None
+        deadline = time.monotonic() + 60
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if "labelling page: " in line:
+                self.url = line.split("labelling page: ")[1].split()[0]
+                break
+            assert time.monotonic() < deadline, "".join(self.lines)
+        assert self.url, "".join(self.lines)
+        self.base = self.url.split("?")[0].rstrip("/")
+        self.token = self.url.split("token=")[1] if "token=" in self.url else ""
+        self.reader = threading.Thread(target=lambda: self.lines.extend(self.proc.stdout), daemon=True)
+        self.reader.start()
+
+    def request(self, path: str, body=None, token: str | None = None, raw: bytes | None = None) -> tuple:
+        """(status, decoded JSON or text, headers)."""
+        data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
+        req = urllib.request.Request(self.base + path, data=data, method="POST" if data is not None else "GET")
+        tok = self.token if token is None else token
+        if tok:
+            req.add_header("X-Token", tok)
+        try:
+            with urllib.request.urlopen(req, timeout=10) as r:
+                status, text, headers = r.status, r.read().decode(), r.headers
+        except urllib.error.HTTPError as exc:
+            status, text, headers = exc.code, exc.read().decode(), exc.headers
+        is_json = headers.get("Content-Type", "").startswith("application/json")
+        return status, json.loads(text) if is_json else text, headers
+
+    def wait_for_queue(self, n: int, timeout: float = 60.0) -> list:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            episodes = self.request("/api/queue")[1]["episodes"]
+            if len(episodes) >= n:
+                return episodes
+            time.sleep(0.2)
+        raise AssertionError(f"queue has {episodes}, expected {n} episodes\n{''.join(self.lines)}")
+
+    def stop(self, sig=signal.SIGINT) -> str:
+        self.proc.send_signal(sig)
+        self.proc.wait(timeout=30)
+        self.reader.join(timeout=5)
+        return "".join(self.lines)
+
+
+def play_episodes(n: int, seed: int = 0) -> None:
+    """env_sim plays n Key episodes (a random agent) once labeller_web subscribes."""
+    agent = start("agent", observe="observation", exit_with_upstream=True)
+    sim = start("env_sim", task="key", episodes=n, seed=seed, wait_for_nodes="[labeller_web]")
+    for proc in (sim, agent):
+        code, out = finish(proc, timeout=60)
+        assert code == 0, out
+
+
+def test_page_refuses_bad_requests(ros_domain, tmp_path):
+    """With a token required: no token and a wrong one are refused (401, also for the page);
+    malformed labels, a script-injection string, an unknown episode (400) and an oversized body
+    (413) are refused cleanly, as JSON; nothing of it is labelled."""
+    node = WebNode(tmp_path / "labels", require_token=True)
+    try:
+        assert len(node.token) >= 20
+        play_episodes(1)
+        node.wait_for_queue(1)
+        for path in ("/", "/api/queue"):
+            assert node.request(path, token="")[0] == 401
+            assert node.request(path, token="wrong")[0] == 401
+        status, page, headers = node.request("/")
+        assert status == 200 and "script-src 'self'" in headers["Content-Security-Policy"]
+        cases = [({"episode": 0, "return": "<script>alert(1)</script>"}, 400),
+                 ({"episode": 0, "return": None}, 400), ({"episode": 0}, 400),
+                 ({"episode": "0", "return": 1.0}, 400), ({"episode": 0, "return": 1e9}, 400),
+                 ({"episode": 99, "return": 1.0}, 400), ([0, 1], 400)]
+        for body, want in cases:
+            status, answer, headers = node.request("/api/label", body)
+            assert status == want and "error" in answer, (body, status, answer)
+            assert headers["Content-Type"].startswith("application/json")
+        assert node.request("/api/label", raw=b"{not json")[0] == 400
+        assert node.request("/api/label", raw=b'{"episode": 0, "return": NaN}')[0] == 400
+        big = json.dumps({"episode": 0, "return": 1.0, "pad": "x" * 10_000}).encode()
+        assert node.request("/api/label", raw=big)[0] == 413
+        assert node.request("/api/labels")[1]["labels"] == []
+    finally:
+        out = node.stop()
+    assert "0 label(s) this session" in out, out
+
+
+def test_labels_reach_the_topic_and_the_bag_and_a_restart_asks_nothing_twice(ros_domain, tmp_path):
+    """Label episodes 0 and 1 of three (and correct 1): the labels are on the topic and in the
+    labels bag at once; kill -9; a restarted node offered the same three episodes asks only for
+    episode 2, and the first session's labels (correction last) are all in its repaired bag."""
+    labels_dir = tmp_path / "labels"
+    capture = Capture()
+    try:
+        node = WebNode(labels_dir)
+        capture.wait_for_publishers({"label": 1})
+        play_episodes(3)
+        assert [e["episode"] for e in node.wait_for_queue(3)] == [0, 1, 2]
+        for episode, value in ((0, 10.0), (1, 20.0), (1, 21.5)):
+            status, answer, _ = node.request("/api/label", {"episode": episode, "return": value})
+            assert status == 200, answer
+        assert capture.spin_until(lambda: len(capture.msgs["label"]) == 3, 20)
+        got = [(m.episode, m.return_value, m.labeller, m.length) for m in capture.msgs["label"]]
+        assert got == [(0, 10.0, "person/alice", 100), (1, 20.0, "person/alice", 100),
+                       (1, 21.5, "person/alice", 100)]
+        assert node.request("/api/labels")[1]["labels"][0] == {
+            "episode": 1, "return": 21.5, "at": pytest.approx(time.time(), abs=60), "corrections": 1}
+        node.stop(signal.SIGKILL)
+
+        node = WebNode(labels_dir)
+        play_episodes(3)
+        time.sleep(1.0)
+        assert [e["episode"] for e in node.wait_for_queue(1)] == [2]
+        out = node.stop()
+    finally:
+        capture.close()
+    assert "repaired the labels bag of an interrupted session" in out, out
+    first = sorted(p for p in labels_dir.iterdir() if p.is_dir())[0]
+    stored = [(m.episode, m.return_value) for _, _, _, m in iter_decoded(first)]
+    assert stored == [(0, 10.0), (1, 20.0), (1, 21.5)]
+
+
+# -- a real browser -------------------------------------------------------------------------------
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
+                                             "apt when run as root)")
+def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
+    """Headless Chromium opens the page: the queue lists the episodes, the first one is drawn
+    (an SVG path of its 101 states over the arena's zones), plays and scrubs; a label typed into
+    the form reaches the topic and the labels bag. The page runs under its strict
+    Content-Security-Policy (no eval, so waits use selectors). A screenshot goes to
+    build/test_artefacts/."""
+    import re
+
+    from playwright.sync_api import expect, sync_playwright
+
+    labels_dir = tmp_path / "labels"
+    capture = Capture()
+    node = WebNode(labels_dir)
+    try:
+        capture.wait_for_publishers({"label": 1})
+        play_episodes(2)
+        node.wait_for_queue(2)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 1200, "height": 700})
+            errors: list = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(node.url)
+            page.wait_for_selector("#queue li")
+            assert page.locator("#queue li").count() == 2
+            page.wait_for_selector("#arena polyline")
+            points = page.get_attribute("#arena polyline", "points").split()
+            assert len(points) == 101
+            assert page.locator("#arena rect.zone-key").count() == 1
+            assert page.locator("#arena rect.zone-treasure").count() == 1
+            assert page.text_content("#range") == "between 0 and 100"
+            page.click("#play")
+            expect(page.locator("#step")).to_have_text(re.compile(r"step [1-9]\d* / 100"), timeout=5000)
+            page.fill("#scrub", "50")
+            page.dispatch_event("#scrub", "input")
+            assert page.text_content("#step") == "step 50 / 100"
+            ARTEFACTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(ARTEFACTS / "labelling_page.png"))
+            page.fill("#return", "7.25")
+            page.click("#submit")
+            page.wait_for_selector("#history tr")
+            assert page.text_content("#history tr td:nth-child(2)") == "7.25"
+            assert errors == []
+            browser.close()
+        assert capture.spin_until(lambda: len(capture.msgs["label"]) == 1, 20)
+        label = capture.msgs["label"][0]
+        assert (label.episode, label.return_value, label.labeller) == (0, 7.25, "person/alice")
+    finally:
+        node.stop()
+        capture.close()
+    session = next(p for p in labels_dir.iterdir() if p.is_dir())
+    assert [(m.episode, m.return_value) for _, _, _, m in iter_decoded(session)] == [(0, 7.25)]
