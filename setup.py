@@ -26,6 +26,7 @@ EXECUTABLES = {
     "agent": "nmrm_ros.nodes.agent_node:main",
     "recorder": "nmrm_ros.nodes.recorder_node:main",
     "replay": "nmrm_ros.nodes.replay_node:main",
+    "trainer": "nmrm_ros.nodes.trainer_node:main",
 }
 
 SHIM = """#!/bin/sh

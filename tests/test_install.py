@@ -9,7 +9,7 @@ from ament_index_python.packages import get_package_prefix, get_package_share_di
 
 #: every executable setup.py declares; a missing one must fail, not just give fewer cases
 EXPECTED_EXECUTABLES = ("agent", "env_sim", "labeller_oracle", "labeller_web", "nmrm", "recorder", "replay",
-                        "reward_model")
+                        "reward_model", "trainer")
 
 
 def test_ament_index_finds_packages():

@@ -2,7 +2,8 @@
 
 An episode is keyed by (task, episode) as in the labeller contract. `LabelQueue` holds finished
 episodes (states (L+1, state_size), the final one included) and the labels of this labeller;
-`pending()` is the queue (unlabelled, not skipped), oldest first; `label()` validates a return
+`pending()` is the queue (unlabelled, not skipped): oldest first, or, with a scorer (see
+`active.py`), the most informative first, each episode carrying why; `label()` validates a return
 against the task's range and records it (a second label of the same episode is a correction: the
 latest one counts, for training too).
 """
@@ -42,6 +43,14 @@ class Episode:
     states: np.ndarray          # (L + 1, state_size): steps 0..L, the last one final
     finished_at: float          # wall time (s since the epoch) of the final observation
     skipped: bool = False
+    spread: float | None = None     # the scorer's: std of the members' predicted returns
+    predicted: float | None = None  # the scorer's: mean predicted return
+
+    @property
+    def why(self) -> str:
+        if self.spread is None:
+            return "oldest first"
+        return f"models disagree: return {self.predicted:.1f} ± {self.spread:.2f}"
 
     @property
     def length(self) -> int:
@@ -63,28 +72,49 @@ class LabelQueue:
     episodes: dict = field(default_factory=dict)    # episode id -> Episode
     labels: dict = field(default_factory=dict)      # episode id -> latest Label
     done_before: set = field(default_factory=set)   # labelled in an earlier session (not asked again)
+    scorer: object = None       # .score(states (L, d)) -> (spread, mean) and .ordering; None: oldest first
 
     def __post_init__(self) -> None:
         self.low, self.high = return_range(self.task)
         self.lock = threading.Lock()
+
+    @property
+    def ordering(self) -> str:
+        return "oldest first" if self.scorer is None else self.scorer.ordering
+
+    def _score(self, ep: Episode) -> None:
+        if self.scorer is None or self.scorer.ordering == "oldest first":
+            ep.spread = ep.predicted = None
+        else:
+            ep.spread, ep.predicted = self.scorer.score(ep.states[:-1])
+
+    def set_scorer(self, scorer) -> None:
+        """Order the queue with `scorer` from now on (None: oldest first); rescores every episode."""
+        with self.lock:
+            self.scorer = scorer
+            for ep in self.episodes.values():
+                self._score(ep)
 
     def add(self, episode: int, states: np.ndarray, finished_at: float | None = None) -> bool:
         """A finished episode; False (and not queued) if it was labelled already."""
         with self.lock:
             if episode in self.labels or episode in self.done_before:
                 return False
-            self.episodes[episode] = Episode(self.task, int(episode), np.asarray(states, np.float32),
-                                             time.time() if finished_at is None else finished_at)
+            ep = Episode(self.task, int(episode), np.asarray(states, np.float32),
+                         time.time() if finished_at is None else finished_at)
+            self._score(ep)
+            self.episodes[episode] = ep
             while len(self.episodes) > self.max_episodes:
                 del self.episodes[min(self.episodes, key=lambda e: self.episodes[e].finished_at)]
             return True
 
     def pending(self) -> list:
-        """Unlabelled, unskipped episodes, oldest first."""
+        """Unlabelled, unskipped episodes: the largest spread first with a scorer, else (and on
+        ties) oldest first."""
         with self.lock:
             waiting = [e for e in self.episodes.values()
                        if e.episode not in self.labels and not e.skipped]
-        return sorted(waiting, key=lambda e: e.finished_at)
+        return sorted(waiting, key=lambda e: (-(e.spread or 0.0), e.finished_at))
 
     def get(self, episode: int) -> Episode:
         with self.lock:

@@ -91,12 +91,12 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
 
     async def api_info(request: web.Request) -> web.Response:
         return web.json_response({"task": queue.task, "range": [queue.low, queue.high],
-                                  "arena": _arena(queue.task), "ordering": "oldest first", **info})
+                                  "arena": _arena(queue.task), "ordering": queue.ordering, **info})
 
     async def api_queue(request: web.Request) -> web.Response:
         return web.json_response({"episodes": [
             {"episode": e.episode, "length": e.length, "finished_at": e.finished_at,
-             "why": "oldest first"} for e in queue.pending()]})
+             "why": e.why, "spread": e.spread, "predicted": e.predicted} for e in queue.pending()]})
 
     async def api_episode(request: web.Request) -> web.Response:
         try:

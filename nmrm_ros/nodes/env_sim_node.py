@@ -43,6 +43,7 @@ PARAMETERS = {
     "task": Param("key", "timer | moving | key | charger | lunar_lander"),
     "seed": Param(0, "seed of episode 0; episode e resets with seed + e"),
     "episodes": Param(1, "number of episodes to run, 0 = for ever", 0),
+    "first_episode": Param(0, "id of the first episode (ids key labels: give each session its own range)", 0),
     "continuous": Param(False, "continuous-action variant of the navigation tasks"),
     "action_timeout": Param(5.0, "seconds to wait for an action before re-publishing the observation", 0.001),
     "max_retries": Param(3, "re-publications of one observation before abandoning the episode", 0),
@@ -68,6 +69,7 @@ class EnvSimNode(Node):
         self.discrete = self.info.discrete and not p["continuous"]
         self.seed = int(p["seed"])
         self.episodes = int(p["episodes"])
+        self.first_episode = int(p["first_episode"])
         self.action_timeout = float(p["action_timeout"])
         self.max_retries = int(p["max_retries"])
         self.max_abandoned = int(p["max_abandoned"])
@@ -90,7 +92,7 @@ class EnvSimNode(Node):
         if self.wait_for_labels:
             self.labels_sub = self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label,
                                                        STEP_QOS)
-        self.episode = -1
+        self.episode = self.first_episode - 1
         self.step_index = 0
         self.state = None
         self.retries = 0
@@ -182,9 +184,9 @@ class EnvSimNode(Node):
 
     def start_episode(self) -> None:
         self.episode += 1
-        if self.episodes and self.episode >= self.episodes:
+        if self.episodes and self.episode - self.first_episode >= self.episodes:
             seconds = time.monotonic() - self.t_start
-            self.get_logger().info(f"done: {self.episode} episodes, {self.steps_total} steps in "
+            self.get_logger().info(f"done: {self.episode - self.first_episode} episodes, {self.steps_total} steps in "
                                    f"{seconds:.2f} s ({self.steps_total / max(seconds, 1e-9):.0f} steps/s), "
                                    f"{self.dropped} action(s) dropped, {self.abandoned} episode(s) "
                                    f"abandoned (no valid action after {self.max_retries} re-publications)"

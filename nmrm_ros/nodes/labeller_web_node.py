@@ -5,6 +5,9 @@ oracle labeller does the same): an episode is complete at its final observation,
 could not be followed in full are not offered. Finished episodes wait in a queue on the page
 (http://HOST:PORT/), oldest first; the person watches one (its path over the arena, play / pause /
 scrub) and enters its return (a number within the task's range, shown on the page) or skips it.
+With `checkpoint` (an ensemble, e.g. the trainer's latest), the queue is ordered by how much the
+members disagree on an episode's return, largest first, and the page says so per episode; the
+trainer sets `checkpoint` again after each retraining (`ros2 param set` works too).
 
 Every label is published at once as TrajectoryReturn with `labeller` = person/<person>, and
 written and flushed to a labels-only bag in `labels_dir` (one bag per session), so a crash or
@@ -42,6 +45,7 @@ PARAMETERS = {
     "require_token": Param(False, "require a token even on 127.0.0.1"),
     "labels_dir": Param("labels", "directory of this labeller's labels bags (one per session)"),
     "max_episodes": Param(1000, "finished episodes kept for labelling (oldest dropped)", 1),
+    "checkpoint": Param("", "MIL ensemble checkpoint: ask first where its members disagree ('' = oldest first)"),
     "exit_with_upstream": Param(False, "exit when the observation topic's publishers are gone"),
 }
 
@@ -64,6 +68,11 @@ class LabellerWebNode(Node):
         if not token and (p["host"] not in LOOPBACK or p["require_token"]):
             token = secrets.token_urlsafe(24)
         self.queue = LabelQueue(self.task, max_episodes=int(p["max_episodes"]))
+        if p["checkpoint"]:
+            error = self._use_checkpoint(p["checkpoint"])
+            if error:
+                raise NodeError(error)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         topic = self.resolve_topic_name(TRAJECTORY_RETURN)
         self.store = LabelStore(p["labels_dir"], self.labeller, topic=topic)
         self.queue.done_before = self.store.labelled_episodes(self.task)
@@ -86,6 +95,35 @@ class LabellerWebNode(Node):
                                f"{self.store.path})")
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
+
+    def _use_checkpoint(self, path: str) -> str:
+        """Order the queue by `path`'s members' disagreement ('' : oldest first); an error or ''."""
+        from ..labelling.active import DisagreementScorer
+        from ..mil import CheckpointError
+
+        if not path:
+            self.queue.set_scorer(None)
+            return ""
+        try:
+            scorer = DisagreementScorer(path, self.task)
+        except (CheckpointError, ValueError) as exc:
+            return str(exc)
+        self.queue.set_scorer(scorer)
+        self.get_logger().info(f"queue ordered {scorer.ordering}, by {path}")
+        return ""
+
+    def _on_set_parameters(self, params):
+        from rcl_interfaces.msg import SetParametersResult
+
+        for param in params:
+            if param.name == "checkpoint":
+                error = self._use_checkpoint(str(param.value))
+                if error:
+                    self.get_logger().warning(f"checkpoint not used: {error}")
+                    return SetParametersResult(successful=False, reason=error)
+            elif param.name in PARAMETERS:
+                return SetParametersResult(successful=False, reason=f"{param.name} is set at start only")
+        return SetParametersResult(successful=True)
 
     # -- episodes (ROS thread) ---------------------------------------------------------------------
     def on_observation(self, msg: EnvObservation) -> None:

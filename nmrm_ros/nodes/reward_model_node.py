@@ -11,6 +11,13 @@ the NumPy online stepper. An ensemble checkpoint serves the members' mean reward
 `reward_std` / `return_std`, and the hidden state of its serving member (the best on validation). mode "oracle": the task's true hidden state and reward (the paper's
 oracle baselines), through the same graph.
 
+Live reload (mode model): setting `checkpoint` while the node runs (`ros2 param set /reward_model
+checkpoint PATH`, or the trainer node after each retraining) loads and checks the new model at
+once (a bad one is refused with its reason, and serving goes on unchanged) and swaps it in at the
+next episode start, never mid-episode. `RewardStep.source` names the model serving each step: the
+checkpoint's name (e.g. key_v003), or `source` if given; the new model must take the same task
+and hidden size, so that the agent's augmented state keeps its size.
+
 Ordering rule (`nmrm_ros.ros.episodes`): a re-published observation (same episode, step and state)
 gets the same RewardStep again, without stepping; a missing or out-of-order step, a state of the
 wrong size or with NaN breaks the episode: it is logged and counted, and nothing more is published
@@ -38,7 +45,8 @@ PARAMETERS = {
     "mode": Param("model", "model | oracle"),
     "checkpoint": Param("", "MIL checkpoint (path to .pt/.json or their stem), mode model"),
     "task": Param("", "task; mode oracle: required; mode model: checked against the checkpoint"),
-    "source": Param("", "id published in RewardStep.source (default: checkpoint name or 'oracle')"),
+    "source": Param("", "id published in RewardStep.source (default: checkpoint name or 'oracle'); "
+                        "kept across live reloads"),
 }
 
 
@@ -58,23 +66,19 @@ class RewardModelNode(Node):
             self.stepper = make_oracle(p["task"]).tracker()
             self.source = p["source"] or "oracle"
         elif mode == "model":
-            from ..mil import CheckpointError, OnlineRewardModel, load_checkpoint
-
             if not p["checkpoint"]:
                 raise NodeError("mode model needs the parameter checkpoint")
-            try:
-                model, meta = load_checkpoint(p["checkpoint"], task=p["task"] or None)
-                self.info = require_task(meta["task"])
-            except (CheckpointError, ValueError) as exc:
-                raise NodeError(str(exc)) from None
-            if model.config.input_size != self.info.state_size:
-                raise NodeError(f"checkpoint takes states of size {model.config.input_size}, task "
-                                f"{meta['task']} has {self.info.state_size}")
-            self.stepper = OnlineRewardModel(model)
+            stepper, self.info, error = self._load(p["checkpoint"], p["task"] or None)
+            if error:
+                raise NodeError(error)
+            self.stepper = stepper
             self.source = p["source"] or Path(p["checkpoint"]).with_suffix("").name
         else:
             raise NodeError(f"unknown mode {mode!r}: use 'model' or 'oracle'")
         self.task = self.info.name
+        self.mode, self.fixed_source = mode, p["source"]
+        self.pending: tuple | None = None  # (stepper, source) loaded live, swapped in at the next step 0
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.follower = EpisodeFollower()
         self.last: RewardStep | None = None
         self.compute_s: list = []
@@ -83,6 +87,43 @@ class RewardModelNode(Node):
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}")
+
+    def _load(self, path: str, task: str | None):
+        """(online stepper, task info, '') of a checkpoint, or (None, None, why not)."""
+        from ..mil import CheckpointError, OnlineRewardModel, load_checkpoint
+
+        try:
+            model, meta = load_checkpoint(path, task=task)
+            info = require_task(meta["task"])
+        except (CheckpointError, ValueError, NodeError) as exc:
+            return None, None, str(exc)
+        if model.config.input_size != info.state_size:
+            return None, None, (f"checkpoint takes states of size {model.config.input_size}, task "
+                                f"{meta['task']} has {info.state_size}")
+        return OnlineRewardModel(model), info, ""
+
+    def _on_set_parameters(self, params):
+        from rcl_interfaces.msg import SetParametersResult
+
+        for param in params:
+            if param.name == "checkpoint":
+                error = ""
+                if self.mode != "model":
+                    error = "mode oracle serves no checkpoint"
+                else:
+                    stepper, _, error = self._load(str(param.value), self.task)
+                    if not error and len(stepper.hidden) != len(self.stepper.hidden):
+                        error = (f"its hidden state has size {len(stepper.hidden)}, the model served "
+                                 f"has {len(self.stepper.hidden)} (the augmented state would change size)")
+                if error:
+                    self.get_logger().warning(f"checkpoint {param.value!r} refused: {error}")
+                    return SetParametersResult(successful=False, reason=error)
+                source = self.fixed_source or Path(str(param.value)).with_suffix("").name
+                self.pending = (stepper, source)
+                self.get_logger().info(f"loaded {param.value}; serving it from the next episode")
+            elif param.name in PARAMETERS:
+                return SetParametersResult(successful=False, reason=f"{param.name} is set at start only")
+        return SetParametersResult(successful=True)
 
     def on_observation(self, msg: EnvObservation) -> None:
         self.messages_received += 1
@@ -98,6 +139,9 @@ class RewardModelNode(Node):
             return
         t0 = time.perf_counter()
         if kind is Kind.START:
+            if self.pending is not None:
+                (self.stepper, self.source), self.pending = self.pending, None
+                self.get_logger().info(f"episode {msg.episode}: now serving {self.source}")
             self.stepper.reset()
         reward, hidden = self.stepper.step(state)
         self.compute_s.append(time.perf_counter() - t0)

@@ -1,0 +1,48 @@
+"""Which episode to ask a person about next (no ROS).
+
+With an ensemble checkpoint, an episode's score is the spread (standard deviation) of the members'
+predicted returns for it: where models trained on bootstrap resamples of the labels disagree, a
+label tells the most (query by committee, as in Christiano et al. 2017 and BPref's disagreement
+sampling). The queue is then ordered by that spread, largest first. A single model has no spread:
+the queue stays oldest first (and `ordering` says so).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import torch
+
+OLDEST_FIRST = "oldest first"
+DISAGREEMENT = "largest disagreement first (std of the ensemble members' predicted returns)"
+
+
+class DisagreementScorer:
+    """`score(states (L, d) instances) -> (spread, mean)` of the members' predicted returns."""
+
+    def __init__(self, checkpoint: str, task: str) -> None:
+        from ..mil import CheckpointError, load_checkpoint
+        from ..mil.ensemble import MILEnsemble
+
+        try:
+            model, meta = load_checkpoint(checkpoint, task=task)
+        except CheckpointError:
+            raise
+        self.model = model.eval()
+        self.source = str(checkpoint)
+        self.members = model.members if isinstance(model, MILEnsemble) else 1
+        self.lock = threading.Lock()
+
+    @property
+    def ordering(self) -> str:
+        return DISAGREEMENT if self.members > 1 else OLDEST_FIRST
+
+    @torch.no_grad()
+    def score(self, states: np.ndarray) -> tuple:
+        x = torch.as_tensor(np.asarray(states, np.float32))[None]
+        with self.lock:
+            returns = self.model(x, torch.tensor([x.shape[1]])).returns.reshape(-1)
+        if self.members == 1:
+            return 0.0, float(returns[0])
+        return float(returns.std(unbiased=False)), float(returns.mean())

@@ -1,0 +1,65 @@
+"""The labelled episodes a trainer has collected so far (no ROS).
+
+Episodes (their states) and labels arrive separately and in any order; they join by episode id
+and length, as in the labeller contract. The latest label per (labeller, episode) counts, so a
+correction replaces the label it corrects; two labellers of one episode give two bags (each an
+opinion on the same trajectory).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..datasets.trajectories import TrajectoryDataset
+
+
+@dataclass
+class TrainingSet:
+    task: str
+    state_size: int
+    max_episodes: int = 20000                          # oldest episodes forgotten beyond this
+    episodes: dict = field(default_factory=dict)       # episode id -> states (L, d) float32
+    final: dict = field(default_factory=dict)          # episode id -> final observation (d,)
+    labels: dict = field(default_factory=dict)         # (labeller, episode) -> (return, length)
+
+    def add_episode(self, episode: int, states: np.ndarray) -> None:
+        """A finished episode: states (L + 1, d), the final observation last."""
+        states = np.asarray(states, np.float32)
+        self.episodes[int(episode)] = states[:-1]
+        self.final[int(episode)] = states[-1]
+        while len(self.episodes) > self.max_episodes:
+            oldest = next(iter(self.episodes))
+            del self.episodes[oldest], self.final[oldest]
+
+    def add_label(self, labeller: str, episode: int, length: int, value: float) -> bool:
+        """Record a label (a later one of the same labeller and episode replaces it); True if it
+        is new rather than a correction."""
+        key = (str(labeller), int(episode))
+        new = key not in self.labels
+        self.labels[key] = (float(value), int(length))
+        return new
+
+    def joined(self) -> list:
+        """[(labeller, episode, return)] of the labels whose episode is here with the same length."""
+        return [(lab, ep, value) for (lab, ep), (value, length) in sorted(self.labels.items())
+                if ep in self.episodes and len(self.episodes[ep]) == length]
+
+    def dataset(self) -> TrajectoryDataset:
+        """The joined labels as MIL bags (no oracle rewards: `rewards` and `hidden` are zeros)."""
+        rows = self.joined()
+        if not rows:
+            raise ValueError("no labelled episode yet")
+        n, horizon = len(rows), max(len(self.episodes[ep]) for _, ep, _ in rows)
+        states = np.zeros((n, horizon, self.state_size), np.float32)
+        lengths = np.zeros(n, np.int64)
+        for i, (_, ep, _) in enumerate(rows):
+            lengths[i] = len(self.episodes[ep])
+            states[i, :lengths[i]] = self.episodes[ep]
+        final = np.stack([self.final[ep] for _, ep, _ in rows])
+        returns = np.array([v for _, _, v in rows], np.float64)
+        meta = {"source": "live labels", "episodes": [ep for _, ep, _ in rows],
+                "labellers": sorted({lab for lab, _, _ in rows}), "oracle_ground_truth": False}
+        return TrajectoryDataset(self.task, states, lengths, returns, np.zeros((n, horizon)),
+                                 np.zeros((n, horizon, 0)), final_states=final, meta=meta)

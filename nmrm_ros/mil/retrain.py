@@ -1,0 +1,120 @@
+"""Retraining on the labels collected so far: one warm-started ensemble, one versioned checkpoint.
+
+The trainer node runs this in a child process (`python -m nmrm_ros.mil.retrain ...`), so that
+training never blocks the node's topics. The split suits a handful of labels: every fifth bag
+(in a seeded order; at least one) validates, the rest train, and each member trains on its own
+bootstrap resample of them (the members' disagreement is then a useful uncertainty for choosing
+what to ask a person next). There is no test split: every label is precious, and the person's
+labels are what the model is checked against.
+
+Warm start: from `init` (the previous version, or a starting checkpoint) when it is an ensemble
+of the same architecture, size and member count, else a fresh one (and the result says so).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..datasets.trajectories import TrajectoryDataset
+from .checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from .ensemble import MILEnsemble, init_ensemble
+from .evaluation import evaluate
+from .models import model_config
+from .training import load_train_config, train_ensemble
+
+
+def retrain_splits(n: int, members: int, seed: int) -> list:
+    """K (train, validation) index pairs: one validation fifth (>= 1 bag), members' training sets
+    bootstrapped from the rest (seed + m). Needs n >= 2."""
+    if n < 2:
+        raise ValueError(f"retraining needs at least 2 labelled episodes, got {n}")
+    order = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, n // 5)
+    val, train = np.sort(order[:n_val]), np.sort(order[n_val:])
+    return [(np.sort(np.random.default_rng(seed + m).choice(train, len(train))), val)
+            for m in range(members)]
+
+
+def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILEnsemble | None, str]:
+    if not init:
+        return None, "fresh (no starting checkpoint)"
+    try:
+        model, _ = load_checkpoint(init, task=task)
+    except CheckpointError as exc:
+        return None, f"not warm-started: {exc}"
+    if not isinstance(model, MILEnsemble):
+        model = MILEnsemble.from_members([model] * members)
+    same = (model.members == members and model.config.architecture == config.architecture
+            and model.config.input_size == config.input_size
+            and model.config.hidden_size == config.hidden_size)
+    if not same:
+        return None, (f"not warm-started: {init} is a {model.members}-member "
+                      f"{model.config.architecture}, not a {members}-member {config.architecture}")
+    return model.train(), f"warm-started from {init}"
+
+
+def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lstm", members: int = 5,
+            max_epochs: int = 40, seed: int = 0, init: str | None = None, threads: int = 1) -> dict:
+    """Train a `members`-member ensemble on `ds` (warm-started from `init` where it fits), save it
+    to `out` (.pt + .json) and return a summary: labels, validation return MSE of the ensemble
+    mean, best epochs, seconds, how it started."""
+    t0 = time.perf_counter()
+    cfg = load_train_config(ds.task, max_epochs=max_epochs, seed=seed, threads=threads)
+    config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
+                          hidden_size=cfg.hidden_size)
+    splits = retrain_splits(len(ds), members, seed)
+    ens, start = _warm_start(init, ds.task, config, members)
+    seeds = [seed + m for m in range(members)]
+    if ens is None:
+        ens = init_ensemble(config, seeds)
+    result = train_ensemble(ens, ds, splits, cfg, seeds=seeds, progress=False)
+    val = splits[0][1]
+    member_val = [evaluate(ens.member(m), ds.subset(val))["return_mse"] for m in range(members)]
+    serving = int(np.argmin(member_val))
+    ens.serving_member.fill_(serving)
+    val_metrics = evaluate(ens, ds.subset(val))
+    summary = {"labels": len(ds), "validation_bags": len(val), "val_return_mse": val_metrics["return_mse"],
+               "val_return_std": val_metrics.get("return_std", 0.0), "best_epochs": result.best_epochs,
+               "epochs_run": result.epochs_run, "start": start,
+               "seconds": round(time.perf_counter() - t0, 2)}
+    path = save_checkpoint(
+        ens, out, task=ds.task, seed=seed, split_seed=seed, train_config=cfg.to_dict(),
+        data={"source": "live labels", "n": len(ds), "meta": ds.meta},
+        ensemble={"members": members, "seeds": seeds, "split_seeds": [seed] * members,
+                  "split_mode": "bootstrap", "serving_member": serving},
+        metrics={"val": val_metrics, "member_val_return_mse": member_val, **summary})
+    summary["checkpoint"] = str(path)
+    return summary
+
+
+def main(argv: list | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m nmrm_ros.mil.retrain", description=__doc__.splitlines()[0])
+    parser.add_argument("--dataset", required=True, help="TrajectoryDataset .npz of the labelled episodes")
+    parser.add_argument("--out", required=True, help="checkpoint path (without suffix)")
+    parser.add_argument("--architecture", default="csc_lstm")
+    parser.add_argument("--members", type=int, default=5)
+    parser.add_argument("--max-epochs", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--init", default=None, help="checkpoint to warm-start from")
+    parser.add_argument("--threads", type=int, default=1)
+    a = parser.parse_args(argv)
+    try:
+        ds = TrajectoryDataset.load(a.dataset)
+        summary = retrain(ds, a.out, a.architecture, a.members, a.max_epochs, a.seed, a.init, a.threads)
+    except (ValueError, OSError) as exc:
+        print(json.dumps({"error": f"{type(exc).__name__}: {exc}"}))
+        return 1
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    sys.exit(main())

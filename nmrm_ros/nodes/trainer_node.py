@@ -1,0 +1,248 @@
+"""trainer: retrains the MIL reward model as labels arrive, and has the reward model reload it.
+
+Follows episodes on `nmrm/observation` (as the labeller contract says) and labels on
+`nmrm/trajectory_return` (those of `labeller`, a labeller id or a prefix such as `person/`; '' =
+any); the latest label per labeller and episode counts, so a correction replaces what it
+corrects. Every `retrain_every` new labels it trains a `members`-member ensemble on all the
+labelled episodes in a child process (`python -m nmrm_ros.mil.retrain`, warm-started from the
+previous version, or from `checkpoint` at first), writes the checkpoint `out_dir/<task>_vNNN`
+(numbering goes on after the versions already there) and sets the `checkpoint` parameter of
+`reward_model` (which swaps it in at its next episode start) and of `labeller_web` (which orders
+its queue by the new members' disagreement). Labels that arrive during a training count towards
+the next one.
+
+`bags`: recordings and labels bags read at start (e.g. an earlier session's), so a restarted
+trainer starts from what was labelled before. The child process dies with the node.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
+
+from ..ros.episodes import EpisodeFollower, Kind
+from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
+from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+
+PARAMETERS = {
+    "task": Param("key", "task of the episodes and labels"),
+    "labeller": Param("person/", "labels used: a labeller id, or a prefix ending in '/'; '' = any"),
+    "retrain_every": Param(10, "retrain after this many new labelled episodes", 1),
+    "architecture": Param("csc_lstm", "csc_lstm | instance_lstm | embedding_lstm | instance_nn"),
+    "members": Param(5, "ensemble members (their disagreement orders the labelling queue)", 1),
+    "max_epochs": Param(40, "epochs per retraining (warm-started; early stopping as configured)", 1),
+    "seed": Param(0, "seed of the splits and of the members' initialisation"),
+    "checkpoint": Param("", "starting checkpoint to warm-start the first retraining from ('' = fresh)"),
+    "out_dir": Param("checkpoints", "where the versioned checkpoints <task>_vNNN.{pt,json} go"),
+    "reward_model": Param("reward_model", "node told to load each new checkpoint ('' = none)"),
+    "labeller_web": Param("labeller_web", "node whose queue each new checkpoint orders ('' = none)"),
+    "bags": Param([""], "recordings and labels bags read at start (labels of `labeller`)"),
+}
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: SIGTERM it when the trainer dies, even by kill -9 (Linux)."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+class TrainerNode(Node):
+    def __init__(self) -> None:
+        self.exit_code = None
+        super().__init__("trainer")
+        p = declare_parameters(self, PARAMETERS)
+        from ..labelling.training_set import TrainingSet
+        from ..mil.models import ARCHITECTURES
+
+        self.info = require_task(p["task"])
+        self.task = p["task"]
+        if p["architecture"] not in ARCHITECTURES:
+            raise NodeError(f"unknown architecture {p['architecture']!r}; known: {', '.join(ARCHITECTURES)}")
+        self.p = p
+        self.labeller = str(p["labeller"])
+        self.set = TrainingSet(self.task, self.info.state_size)
+        self.out_dir = Path(p["out_dir"])
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.version = self._last_version()
+        self.latest = p["checkpoint"] or None
+        self.new_labels = 0
+        self.child: subprocess.Popen | None = None
+        self.job: dict = {}
+        self.follower = EpisodeFollower()
+        self.states: list = []
+        self._read_bags([b for b in p["bags"] if b])
+        self.param_clients = {name: self._client(name) for name in (p["reward_model"], p["labeller_web"]) if name}
+        self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
+        self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label, STEP_QOS)
+        self.create_timer(0.5, self.poll)
+        self.get_logger().info(
+            f"task {self.task}: retraining a {p['members']}-member {p['architecture']} every "
+            f"{p['retrain_every']} new label(s) of {self.labeller or 'any labeller'}; "
+            f"{len(self.set.joined())} labelled episode(s) from bags; next version "
+            f"{self._name(self.version + 1)} in {self.out_dir}")
+
+    # -- inputs ------------------------------------------------------------------------------------
+    def _wanted(self, labeller: str) -> bool:
+        if not self.labeller:
+            return True
+        return labeller.startswith(self.labeller) if self.labeller.endswith("/") else labeller == self.labeller
+
+    def _read_bags(self, bags: list) -> None:
+        from ..bags import BagError, iter_decoded
+        from ..bags.episodes import load_bag_dataset
+
+        if not bags:
+            return
+        labels = []
+        for bag in bags:
+            try:
+                labels += [m for _, t, _, m in iter_decoded(bag) if t.endswith("TrajectoryReturn")]
+            except BagError as exc:
+                raise NodeError(str(exc)) from None
+        for labeller in sorted({m.labeller for m in labels if self._wanted(m.labeller)}):
+            try:
+                ds, _ = load_bag_dataset(bags, task=self.task, labeller=labeller)
+            except BagError:
+                continue
+            for i, ep in enumerate(ds.meta["episodes"]):
+                n = int(ds.lengths[i])
+                self.set.add_episode(ep, np.concatenate([ds.states[i, :n], ds.final_states[i][None]]))
+                self.set.add_label(labeller, ep, n, float(ds.returns[i]))
+
+    def on_observation(self, msg: EnvObservation) -> None:
+        kind, state, _ = self.follower.follow(msg, self.task, self.info.state_size)
+        if kind in (Kind.DUPLICATE, Kind.BROKEN):
+            return
+        if kind is Kind.START:
+            self.states = []
+        self.states.append(state)
+        if msg.terminated or msg.truncated:
+            self.follower.finish()
+            if msg.step > 0:
+                self.set.add_episode(int(msg.episode), np.stack(self.states))
+            self.states = []
+            self.maybe_retrain()
+
+    def on_label(self, msg: TrajectoryReturn) -> None:
+        if msg.task != self.task or not self._wanted(msg.labeller):
+            return
+        if not np.isfinite(msg.return_value):
+            self.get_logger().warning(f"ignoring a non-finite label of episode {msg.episode}")
+            return
+        if self.set.add_label(msg.labeller, msg.episode, msg.length, msg.return_value):
+            self.new_labels += 1
+        self.maybe_retrain()
+
+    # -- retraining --------------------------------------------------------------------------------
+    def _name(self, version: int) -> str:
+        return f"{self.task}_v{version:03d}"
+
+    def _last_version(self) -> int:
+        found = [int(m.group(1)) for f in self.out_dir.glob(f"{self.task}_v*.json")
+                 if (m := re.fullmatch(rf"{re.escape(self.task)}_v(\d+)\.json", f.name))]
+        return max(found, default=0)
+
+    def maybe_retrain(self) -> None:
+        if self.child is not None or self.new_labels < self.p["retrain_every"]:
+            return
+        try:
+            ds = self.set.dataset()
+        except ValueError:
+            return
+        if len(ds) < 2:
+            return
+        self.version += 1
+        name = self._name(self.version)
+        data = self.out_dir / ".datasets"
+        data.mkdir(exist_ok=True)
+        path = ds.save(data / f"{name}.npz")
+        cmd = [sys.executable, "-m", "nmrm_ros.mil.retrain", "--dataset", str(path),
+               "--out", str(self.out_dir / name), "--architecture", self.p["architecture"],
+               "--members", str(self.p["members"]), "--max-epochs", str(self.p["max_epochs"]),
+               "--seed", str(self.p["seed"] + self.version)]
+        if self.latest:
+            cmd += ["--init", str(self.latest)]
+        self.new_labels = 0
+        self.job = {"name": name, "labels": len(ds), "started": time.monotonic()}
+        self.child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                      preexec_fn=_die_with_parent)
+        self.get_logger().info(f"retraining {name} on {len(ds)} labelled episode(s)")
+
+    def poll(self) -> None:
+        if self.child is None or self.child.poll() is None:
+            return
+        out, err = self.child.communicate()
+        code, self.child = self.child.returncode, None
+        name = self.job["name"]
+        try:
+            summary = json.loads(out.strip().splitlines()[-1])
+        except (ValueError, IndexError):
+            summary = {"error": (err.strip().splitlines() or [f"exit {code}"])[-1]}
+        if code != 0 or "error" in summary:
+            self.get_logger().error(f"retraining {name} failed: {summary.get('error')}")
+        else:
+            self.latest = summary["checkpoint"]
+            self.get_logger().info(
+                f"{name}: {summary['labels']} labels, validation return MSE "
+                f"{summary['val_return_mse']:.3f} ({summary['validation_bags']} bag(s)), members' "
+                f"spread {summary['val_return_std']:.3f}, {summary['seconds']:.1f} s, {summary['start']}")
+            for client in self.param_clients.values():
+                self._tell(client, self.latest)
+        self.maybe_retrain()
+
+    # -- telling the other nodes -------------------------------------------------------------------
+    def _client(self, name: str):
+        from rclpy.parameter_client import AsyncParameterClient
+
+        return AsyncParameterClient(self, name)
+
+    def _tell(self, client, checkpoint: str) -> None:
+        node = client.remote_node_name
+        if not client.services_are_ready():
+            self.get_logger().warning(f"{node} is not reachable; it keeps its model")
+            return
+        future = client.set_parameters([Parameter("checkpoint", value=str(checkpoint))])
+
+        def done(f) -> None:
+            try:
+                result = f.result().results[0]
+            except Exception as exc:  # noqa: BLE001 - a service failure is reported, not raised
+                self.get_logger().warning(f"{node}: setting checkpoint failed: {exc}")
+                return
+            if result.successful:
+                self.get_logger().info(f"{node} loads {checkpoint}")
+            else:
+                self.get_logger().warning(f"{node} refused {checkpoint}: {result.reason}")
+
+        future.add_done_callback(done)
+
+    def close(self) -> None:
+        if self.child is not None and self.child.poll() is None:
+            self.child.terminate()
+            try:
+                self.child.wait(5)
+            except subprocess.TimeoutExpired:
+                self.child.kill()
+            self.get_logger().info(f"retraining {self.job.get('name')} stopped unfinished")
+
+
+def main(args=None) -> int:
+    return run_node(TrainerNode, "trainer", __doc__.strip().splitlines()[0], PARAMETERS, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
