@@ -180,6 +180,23 @@ def test_replay_reproduces_messages(capture, tmp_path):
     assert len(capture.msgs["oracle_step"]) == 500 and len(capture.msgs["action"]) == 500
 
 
+def test_replay_as_fast_as_possible_waits_for_a_slow_subscriber(capture, tmp_path):
+    """rate 0 with 120 episodes (12,120 observations) to a subscriber that takes nothing for 3 s:
+    the writer's keep-all history fills (the DDS resource limits) and replay waits for the
+    subscriber instead of dying; every observation arrives, in order."""
+    ds = generate_screened("key", 120, seed=2)
+    path = write_dataset_bag(ds, tmp_path / "bag", include_oracle=False)
+    rp = start("replay", bag=str(path), wait_for_subscribers=1, topics="[/nmrm/observation]")
+    capture.wait_for_publishers({"observation": 1})
+    time.sleep(3.0)  # not spinning: the subscriber takes nothing
+    assert capture.spin_until(lambda: rp.poll() is not None, 120)
+    code, log = finish(rp, 60)
+    capture.spin_for(0.5)
+    assert code == 0, log
+    got = [(m.episode, m.step) for m in capture.msgs["observation"]]
+    assert got == [(e, t) for e in range(120) for t in range(int(ds.lengths[e]) + 1)], log
+
+
 def test_training_from_bag_equals_training_in_memory(tmp_path):
     ds = generate_screened("key", 200, seed=3)
     path = write_dataset_bag(ds, tmp_path / "bag")

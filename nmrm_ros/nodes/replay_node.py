@@ -19,6 +19,8 @@ from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subs
 from ..ros.topics import STEP_QOS
 from .recorder_node import message_class
 
+RETRY_TIMEOUT_S = 60.0  # a full writer history: how long to wait for subscribers to take messages
+
 PARAMETERS = {
     "bag": Param("", "bag directory (or .mcap file) to replay"),
     "rate": Param(0.0, "playback speed factor of the recorded timing; 0 = as fast as subscribers take", 0.0),
@@ -57,6 +59,7 @@ class ReplayNode(Node):
         self.start_delay = float(p["start_delay"])
         self.ready_at = None
         self.published = 0
+        self.retries = 0
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"replaying {self.path}: {', '.join(self.topics)} "
                                f"(rate {self.rate or 'as fast as subscribers take'})")
@@ -82,7 +85,8 @@ class ReplayNode(Node):
             self.get_logger().error(str(exc))
             self.exit_code = 1
             return
-        self.get_logger().info(f"replayed {self.published} messages")
+        self.get_logger().info(f"replayed {self.published} messages"
+                               + (f" ({self.retries} retries while subscribers caught up)" if self.retries else ""))
         self.exit_code = 0
 
     def play_once(self) -> None:
@@ -94,8 +98,27 @@ class ReplayNode(Node):
                 delay = (m.log_time_ns - first) / 1e9 / self.rate - (time.monotonic() - start_wall)
                 if delay > 0:
                     time.sleep(delay)
-            self.pubs[m.topic].publish(m.data)
+            self._publish(self.pubs[m.topic], m.data)
             self.published += 1
+
+    def _publish(self, pub, data: bytes) -> None:
+        """Publish; while the writer's keep-all history is full (bounded by the DDS resource
+        limits: rate 0 outpaces slow subscribers), retry until they catch up, up to
+        RETRY_TIMEOUT_S."""
+        from rclpy._rclpy_pybind11 import RCLError
+
+        deadline = None
+        while True:
+            try:
+                pub.publish(data)
+                return
+            except RCLError:
+                deadline = deadline or time.monotonic() + RETRY_TIMEOUT_S
+                if time.monotonic() > deadline:
+                    raise BagError(f"subscribers of {pub.topic_name} took nothing for {RETRY_TIMEOUT_S:.0f} s; "
+                                   f"stopped after {self.published} messages") from None
+                self.retries += 1
+                time.sleep(0.01)
 
 
 def main(args=None) -> int:
