@@ -16,12 +16,13 @@ from pathlib import Path
 import pytest
 
 from graph_helpers import executable, finish
-from nmrm_ros.bags import bag_summary, load_bag_dataset
+from nmrm_ros.bags import bag_summary, iter_decoded, load_bag_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_DIR = REPO / "launch_scripts"
 ROS2 = Path(os.environ.get("NMRM_VENV", REPO / ".venv")) / "bin" / "ros2"
-NODES = ("env_sim", "labeller_oracle", "labeller_web", "reward_model", "agent", "recorder", "replay")
+NODES = ("env_sim", "labeller_oracle", "labeller_web", "reward_model", "agent", "recorder", "replay",
+         "trainer")
 
 pytestmark = pytest.mark.skipif(
     not ROS2.exists(), reason=f"real ROS 2 CLI not installed ({ROS2} missing; scripts/test.sh installs it "
@@ -107,6 +108,69 @@ def test_ros2_param_and_topic_against_a_running_graph(ros_domain):
         code, out = finish(proc, 60)
     assert code == 0, out
     assert "process has died" not in out and out.count("process has finished cleanly") == 4, out
+
+
+def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
+    """label.launch.yaml under `ros2 launch`: four episodes wait on the page; two labels posted to
+    its API make the trainer write key_v001, which the reward model and the page's queue load;
+    the labels are in the labels bag; Ctrl-C ends all six nodes cleanly."""
+    import json
+    import threading
+    import time
+    import urllib.request
+
+    from nmrm_ros.mil import save_checkpoint
+    from nmrm_ros.mil.ensemble import init_ensemble
+    from nmrm_ros.mil.models import model_config
+
+    start = tmp_path / "key_start"
+    save_checkpoint(init_ensemble(model_config("csc_lstm", "key", 2), [0, 1]), start, task="key",
+                    ensemble={"members": 2, "seeds": [0, 1], "serving_member": 0})
+    out_dir = tmp_path / "session"
+    proc = launcher("ros2", "label.launch.yaml", f"checkpoint:={start}", "episodes:=4", "port:=0",
+                    "retrain_every:=2", "members:=2", "max_epochs:=3", f"out:={out_dir}", "person:=carol")
+    lines: list = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+
+    def wait_for(text: str, timeout: float = 90.0) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in list(lines):
+                if text in line:
+                    return line
+            time.sleep(0.2)
+        raise AssertionError(f"no {text!r} in\n{''.join(lines)}")
+
+    def api(path: str, body=None):
+        data = None if body is None else json.dumps(body).encode()
+        with urllib.request.urlopen(urllib.request.Request(base + path, data=data), timeout=10) as r:
+            return json.loads(r.read())
+
+    try:
+        base = wait_for("labelling page: ").split("labelling page: ")[1].split()[0].rstrip("/")
+        wait_for("[env_sim]: done: 4 episodes")
+        queue = api("/api/queue")["episodes"]
+        assert len(queue) == 4 and all(e["why"].startswith("models disagree") for e in queue), queue
+        for e in queue[:2]:
+            api("/api/label", {"episode": e["episode"], "return": 10.0})
+        wait_for("reward_model loads")
+        wait_for("labeller_web loads")
+        assert (out_dir / "checkpoints" / "key_v001.pt").is_file()
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            code = proc.wait(60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            code = proc.wait()
+        reader.join(10)
+    out = "".join(lines)
+    assert code == 0, out
+    assert "process has died" not in out and out.count("process has finished cleanly") == 6, out
+    labels = [m for bag in (out_dir / "labels").iterdir() for _, _, _, m in iter_decoded(bag)]
+    assert sorted(m.episode for m in labels) == sorted(e["episode"] for e in queue[:2])
+    assert {m.labeller for m in labels} == {"person/carol"}
 
 
 @pytest.mark.parametrize("node", NODES)

@@ -1,0 +1,191 @@
+"""How many labels the active ordering needs, versus oldest first: Key, the oracle playing the person.
+
+The real nodes: `replay` plays a pool of screened Key episodes (a bag) to `labeller_web` and
+`trainer`; a simulated person answers the page's HTTP API: it takes the first episode of the
+queue and posts the oracle's return, `--batch` labels at a time, then waits for the trainer's
+next version (and, in the active arm, for the page to reorder by it) before going on, as a person
+would label while the model retrains. Arms: `active` (the trainer sets labeller_web's checkpoint:
+largest ensemble disagreement first) and `oldest` (the trainer does not: oldest first). Both start
+with the same oldest-first batch (there is no model yet). Each version is scored afterwards on a
+held-out screened test set (another data seed) with oracle rewards: return and reward MSE of the
+ensemble mean.
+
+    .venv/bin/python bench/active_labelling.py --seeds 0 1 2 --labels 200 --batch 20
+Writes bench/results/active_labelling.{json,txt,png}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+from ament_index_python.packages import get_package_prefix
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "bench" / "results"
+
+
+def executable(name: str) -> str:
+    return str(Path(get_package_prefix("nmrm_ros")) / "lib" / "nmrm_ros" / name)
+
+
+class Proc:
+    """A node process whose output lines are collected by a thread."""
+
+    def __init__(self, name: str, **params) -> None:
+        cmd = [executable(name), "--ros-args"]
+        for k, v in params.items():
+            cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     env=os.environ.copy())
+        self.lines: list = []
+        self.thread = threading.Thread(target=lambda: self.lines.extend(self.proc.stdout), daemon=True)
+        self.thread.start()
+
+    def wait_for(self, pattern: str, count: int = 1, timeout: float = 600.0) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = [line for line in list(self.lines) if re.search(pattern, line)]
+            if len(found) >= count:
+                return found[count - 1]
+            if self.proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        raise RuntimeError(f"no {count}x {pattern!r} in:\n{''.join(self.lines[-30:])}")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+        self.proc.wait(30)
+
+
+def api(base: str, path: str, body=None):
+    data = None if body is None else json.dumps(body).encode()
+    with urllib.request.urlopen(urllib.request.Request(base + path, data=data), timeout=30) as r:
+        return json.loads(r.read())
+
+
+def run_arm(arm: str, seed: int, pool_bag: Path, returns: dict, work: Path, args) -> list:
+    """Label args.labels episodes through the page; returns [(labels, checkpoint path, seconds)]."""
+    os.environ["ROS_DOMAIN_ID"] = str(100 + seed * 2 + (arm == "active"))
+    out = work / f"{arm}_{seed}"
+    web = Proc("labeller_web", task="key", port=0, person="sim", labels_dir=out / "labels",
+               max_episodes=len(returns))
+    trainer = Proc("trainer", task="key", retrain_every=args.batch, members=args.members,
+                   max_epochs=args.max_epochs, seed=seed, out_dir=out / "checkpoints",
+                   reward_model="''", labeller_web="labeller_web" if arm == "active" else "''")
+    base = web.wait_for("labelling page: ", timeout=60).split("labelling page: ")[1].split()[0].rstrip("/")
+    replay = Proc("replay", bag=pool_bag, topics="[/nmrm/observation]", wait_for_subscribers=2,
+                  wait_for_nodes="[labeller_web, trainer]", start_delay=1.0)
+    versions = []
+    t0 = time.monotonic()
+    try:
+        replay.wait_for(r"done|finished|replayed", timeout=300)
+        deadline = time.monotonic() + 120
+        while len(api(base, "/api/queue")["episodes"]) < len(returns):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the page has {len(api(base, '/api/queue')['episodes'])} of "
+                                   f"{len(returns)} episodes")
+            time.sleep(0.5)
+        for version in range(1, args.labels // args.batch + 1):
+            for _ in range(args.batch):
+                first = api(base, "/api/queue")["episodes"][0]
+                api(base, "/api/label", {"episode": first["episode"], "return": returns[first["episode"]]})
+            name = f"key_v{version:03d}"
+            trainer.wait_for(rf"{name}: \d+ labels")
+            if arm == "active":
+                trainer.wait_for("labeller_web loads", count=version)
+            versions.append((version * args.batch, str(out / "checkpoints" / name), time.monotonic() - t0))
+            print(f"  [{arm} seed {seed}] {name}: {version * args.batch} labels, {time.monotonic() - t0:.0f} s",
+                  flush=True)
+    finally:
+        for p in (replay, trainer, web):
+            p.stop()
+    return versions
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--labels", type=int, default=200)
+    parser.add_argument("--batch", type=int, default=20)
+    parser.add_argument("--pool", type=int, default=500, help="screened Key episodes offered (data seed 1)")
+    parser.add_argument("--test", type=int, default=500, help="screened Key test episodes (data seed 2)")
+    parser.add_argument("--members", type=int, default=5)
+    parser.add_argument("--max-epochs", type=int, default=40)
+    parser.add_argument("--out", type=Path, default=RESULTS / "active_labelling")
+    args = parser.parse_args()
+
+    from nmrm_ros.bags import write_dataset_bag
+    from nmrm_ros.datasets import generate_screened
+    from nmrm_ros.mil import evaluate, load_checkpoint
+
+    start = time.monotonic()
+    pool = generate_screened("key", args.pool, seed=1)
+    test = generate_screened("key", args.test, seed=2)
+    work = Path(tempfile.mkdtemp(prefix="active_labelling_"))
+    pool_bag = write_dataset_bag(pool, work / "pool", include_oracle=False)
+    returns = {e: float(pool.returns[e]) for e in range(len(pool))}
+    rows = []
+    for seed in args.seeds:
+        for arm in ("oldest", "active"):
+            for labels, ckpt, seconds in run_arm(arm, seed, pool_bag, returns, work, args):
+                model, _ = load_checkpoint(ckpt, task="key")
+                m = evaluate(model, test)
+                rows.append({"arm": arm, "seed": seed, "labels": labels, "seconds": round(seconds, 1),
+                             "return_mse": m["return_mse"], "reward_mse": m["reward_mse"]})
+    wall = time.monotonic() - start
+    lines = [f"# Key, pool {args.pool} screened episodes (data seed 1), test {args.test} (data seed 2); "
+             f"{args.members}-member CSC ensembles, {args.max_epochs} epochs per version, warm-started; "
+             f"a version every {args.batch} labels; seeds {args.seeds}",
+             "test MSE of the ensemble mean: mean over seeds [worst]",
+             f"{'labels':>6}  {'oldest: return':>20} {'reward':>20}   {'active: return':>20} {'reward':>20}"]
+    for labels in sorted({r["labels"] for r in rows}):
+        cells = []
+        for arm in ("oldest", "active"):
+            sel = [r for r in rows if r["arm"] == arm and r["labels"] == labels]
+            for key in ("return_mse", "reward_mse"):
+                v = np.array([r[key] for r in sel])
+                cells.append(f"{v.mean():10.4f} [{v.max():8.4f}]")
+        lines.append(f"{labels:6d}  " + " ".join(cells[:2]) + "   " + " ".join(cells[2:]))
+    lines.append(f"# wall time {wall:.0f} s")
+    text = "\n".join(lines)
+    print(text)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".txt").write_text(text + "\n")
+    args.out.with_suffix(".json").write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()},
+                                                         "rows": rows, "wall_seconds": wall}, indent=1))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
+    for ax, key in zip(axes, ("return_mse", "reward_mse")):
+        for arm, colour in (("oldest", "tab:grey"), ("active", "tab:blue")):
+            xs = sorted({r["labels"] for r in rows if r["arm"] == arm})
+            vals = np.array([[r[key] for r in rows if r["arm"] == arm and r["labels"] == x] for x in xs])
+            ax.plot(xs, vals.mean(1), "o-", color=colour, label=f"{arm} first" if arm == "oldest" else
+                    "largest disagreement first")
+            ax.fill_between(xs, vals.min(1), vals.max(1), color=colour, alpha=0.2)
+        ax.set_yscale("log")
+        ax.set_xlabel("labels given")
+        ax.set_title(f"Key: test {key.replace('_', ' ')}")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(args.out.with_suffix(".png"), dpi=110)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
