@@ -210,3 +210,27 @@ def test_labels_retrain_and_the_reward_model_serves_the_new_version(ros_domain, 
 
     ds = TrajectoryDataset.load(out_dir / ".datasets" / "key_v001.npz")
     assert ds.returns.tolist() == [4.0, 6.0] and ds.meta["labellers"] == ["person/test"]
+
+
+def test_a_restarted_trainer_starts_from_the_bags_and_the_newest_version(ros_domain, tmp_path):
+    """bags:=[recording] of 6 episodes labelled by person/x: the trainer starts with those 6, and
+    warm-starts from the newest version in out_dir (not from the `checkpoint` given at first)."""
+    from nmrm_ros.bags import write_dataset_bag
+    from nmrm_ros.datasets import generate_screened
+
+    bag = write_dataset_bag(generate_screened("key", 6, seed=3), tmp_path / "rec", labeller="person/x")
+    out_dir = tmp_path / "checkpoints"
+    out_dir.mkdir()
+    for name in ("key_v001", "key_v002"):
+        _ensemble_checkpoint(out_dir / name, [0, 1])
+    a, _ = _ensemble_checkpoint(tmp_path / "key_a", [0, 1])
+    proc = start("trainer", task="key", out_dir=out_dir, checkpoint=a, bags=f"[{bag}]")
+    line = ""
+    for line in proc.stdout:
+        if "task key:" in line:
+            break
+    proc.terminate()
+    code, rest = finish(proc)
+    assert "6 labelled episode(s) from bags" in line, line + rest
+    assert f"next version key_v003 in {out_dir}, warm-started from {out_dir / 'key_v002.pt'}" in line, line
+    assert code == 0, rest

@@ -5,8 +5,8 @@ Follows episodes on `nmrm/observation` (as the labeller contract says) and label
 any); the latest label per labeller and episode counts, so a correction replaces what it
 corrects. Every `retrain_every` new labels it trains a `members`-member ensemble on all the
 labelled episodes in a child process (`python -m nmrm_ros.mil.retrain`, warm-started from the
-previous version, or from `checkpoint` at first), writes the checkpoint `out_dir/<task>_vNNN`
-(numbering goes on after the versions already there) and sets the `checkpoint` parameter of
+previous version: the newest in `out_dir`, else `checkpoint`), writes the checkpoint
+`out_dir/<task>_vNNN` (numbering goes on after the versions already there) and sets the `checkpoint` parameter of
 `reward_model` (which swaps it in at its next episode start) and of `labeller_web` (which orders
 its queue by the new members' disagreement). Labels that arrive during a training count towards
 the next one.
@@ -78,7 +78,9 @@ class TrainerNode(Node):
         self.out_dir = Path(p["out_dir"])
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.version = self._last_version()
-        self.latest = p["checkpoint"] or None
+        # warm start: the newest version already in out_dir (a restarted trainer), else `checkpoint`
+        newest = self.out_dir / f"{self._name(self.version)}.pt"
+        self.latest = str(newest) if self.version and newest.is_file() else (p["checkpoint"] or None)
         self.new_labels = 0
         self.child: subprocess.Popen | None = None
         self.job: dict = {}
@@ -93,7 +95,7 @@ class TrainerNode(Node):
             f"task {self.task}: retraining a {p['members']}-member {p['architecture']} every "
             f"{p['retrain_every']} new label(s) of {self.labeller or 'any labeller'}; "
             f"{len(self.set.joined())} labelled episode(s) from bags; next version "
-            f"{self._name(self.version + 1)} in {self.out_dir}")
+            f"{self._name(self.version + 1)} in {self.out_dir}, warm-started from {self.latest or 'nothing'}")
 
     # -- inputs ------------------------------------------------------------------------------------
     def _wanted(self, labeller: str) -> bool:
