@@ -29,24 +29,17 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
-from ament_index_python.packages import get_package_prefix
+from nmrm_ros.ros.ament_paths import node_command
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "results"
-
-
-def executable(name: str) -> str:
-    return str(Path(get_package_prefix("nmrm_ros")) / "lib" / "nmrm_ros" / name)
 
 
 class Proc:
     """A node process whose output lines are collected by a thread."""
 
     def __init__(self, name: str, **params) -> None:
-        cmd = [executable(name), "--ros-args"]
-        for k, v in params.items():
-            cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        self.proc = subprocess.Popen(node_command(name, **params), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                      env=os.environ.copy())
         self.lines: list = []
         self.thread = threading.Thread(target=lambda: self.lines.extend(self.proc.stdout), daemon=True)

@@ -24,18 +24,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from ament_index_python.packages import get_package_prefix
-
-
-def executable(name: str) -> str:
-    return str(Path(get_package_prefix("nmrm_ros")) / "lib" / "nmrm_ros" / name)
+from nmrm_ros.ros.ament_paths import node_command
 
 
 def start(name: str, **params) -> subprocess.Popen:
-    cmd = [executable(name), "--ros-args"]
-    for k, v in params.items():
-        cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(node_command(name, **params), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
 
 
 def main() -> int:

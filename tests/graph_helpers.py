@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from ament_index_python.packages import get_package_prefix
 
+from nmrm_ros.ros.ament_paths import node_command
 from nmrm_ros.ros.node_main import _executor
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, OracleStep, RewardStep, TrajectoryReturn
@@ -22,16 +22,13 @@ LAUNCH_FILE = REPO / "launch_scripts" / "graph.launch.yaml"
 
 
 def executable(name: str) -> str:
-    return str(Path(get_package_prefix("nmrm_ros")) / "lib" / "nmrm_ros" / name)
+    return node_command(name)[0]
 
 
 def start(name: str, **params) -> subprocess.Popen:
     """Start node executable `name` with ROS parameters, output captured."""
-    cmd = [executable(name), "--ros-args"]
-    for k, v in params.items():
-        cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env=os.environ.copy())
+    return subprocess.Popen(node_command(name, **params), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
 
 
 def launch(*arguments: str) -> subprocess.Popen:

@@ -30,8 +30,8 @@ from rclpy.node import Node
 from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
 
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, require_task,
-                             run_node)
+from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, live_parameter,
+                             require_task, run_node)
 from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
@@ -72,7 +72,7 @@ class LabellerWebNode(Node):
             error = self._use_checkpoint(p["checkpoint"])
             if error:
                 raise NodeError(error)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        live_parameter(self, PARAMETERS, "checkpoint", lambda value: self._use_checkpoint(str(value)))
         topic = self.resolve_topic_name(TRAJECTORY_RETURN)
         self.store = LabelStore(p["labels_dir"], self.labeller, topic=topic)
         self.queue.done_before = self.store.labelled_episodes(self.task)
@@ -111,19 +111,6 @@ class LabellerWebNode(Node):
         self.queue.set_scorer(scorer)
         self.get_logger().info(f"queue ordered {scorer.ordering}, by {path}")
         return ""
-
-    def _on_set_parameters(self, params):
-        from rcl_interfaces.msg import SetParametersResult
-
-        for param in params:
-            if param.name == "checkpoint":
-                error = self._use_checkpoint(str(param.value))
-                if error:
-                    self.get_logger().warning(f"checkpoint not used: {error}")
-                    return SetParametersResult(successful=False, reason=error)
-            elif param.name in PARAMETERS:
-                return SetParametersResult(successful=False, reason=f"{param.name} is set at start only")
-        return SetParametersResult(successful=True)
 
     # -- episodes (ROS thread) ---------------------------------------------------------------------
     def on_observation(self, msg: EnvObservation) -> None:

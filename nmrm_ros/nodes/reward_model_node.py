@@ -37,7 +37,7 @@ from nmrm_msgs.msg import EnvObservation, RewardStep
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, require_task, run_node)
+                             exit_with_upstream, live_parameter, require_task, run_node)
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
 
 PARAMETERS = {
@@ -78,7 +78,7 @@ class RewardModelNode(Node):
         self.task = self.info.name
         self.mode, self.fixed_source = mode, p["source"]
         self.pending: tuple | None = None  # (stepper, source) loaded live, swapped in at the next step 0
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        live_parameter(self, PARAMETERS, "checkpoint", self._reload)
         self.follower = EpisodeFollower()
         self.last: RewardStep | None = None
         self.compute_s: list = []
@@ -102,28 +102,20 @@ class RewardModelNode(Node):
                                 f"{meta['task']} has {info.state_size}")
         return OnlineRewardModel(model), info, ""
 
-    def _on_set_parameters(self, params):
-        from rcl_interfaces.msg import SetParametersResult
-
-        for param in params:
-            if param.name == "checkpoint":
-                error = ""
-                if self.mode != "model":
-                    error = "mode oracle serves no checkpoint"
-                else:
-                    stepper, _, error = self._load(str(param.value), self.task)
-                    if not error and len(stepper.hidden) != len(self.stepper.hidden):
-                        error = (f"its hidden state has size {len(stepper.hidden)}, the model served "
-                                 f"has {len(self.stepper.hidden)} (the augmented state would change size)")
-                if error:
-                    self.get_logger().warning(f"checkpoint {param.value!r} refused: {error}")
-                    return SetParametersResult(successful=False, reason=error)
-                source = self.fixed_source or Path(str(param.value)).with_suffix("").name
-                self.pending = (stepper, source)
-                self.get_logger().info(f"loaded {param.value}; serving it from the next episode")
-            elif param.name in PARAMETERS:
-                return SetParametersResult(successful=False, reason=f"{param.name} is set at start only")
-        return SetParametersResult(successful=True)
+    def _reload(self, value) -> str:
+        """A new `checkpoint` set while running: load and check it now, serve it from the next
+        step 0; '' or why it is refused."""
+        if self.mode != "model":
+            return "mode oracle serves no checkpoint"
+        stepper, _, error = self._load(str(value), self.task)
+        if error:
+            return error
+        if len(stepper.hidden) != len(self.stepper.hidden):
+            return (f"its hidden state has size {len(stepper.hidden)}, the model served has "
+                    f"{len(self.stepper.hidden)} (the augmented state would change size)")
+        self.pending = (stepper, self.fixed_source or Path(str(value)).with_suffix("").name)
+        self.get_logger().info(f"loaded {value}; serving it from the next episode")
+        return ""
 
     def on_observation(self, msg: EnvObservation) -> None:
         self.messages_received += 1

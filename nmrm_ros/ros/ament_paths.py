@@ -63,3 +63,17 @@ def require_share_dir(package: str) -> Path:
         raise FileNotFoundError(f"share/{package} not found: install the package (bash scripts/setup_env.sh, "
                                 f"or colcon build and source install/setup.bash)")
     return share
+
+
+def node_command(name: str, **params) -> list:
+    """The command line of node executable `name` as `ros2 run nmrm_ros NAME` runs it
+    (`<prefix>/lib/nmrm_ros/NAME`), with `params` as `--ros-args -p k:=v` (bools lower-case)."""
+    from ament_index_python.packages import get_package_prefix
+
+    ensure_ament_prefix_path()
+    cmd = [str(Path(get_package_prefix("nmrm_ros")) / "lib" / "nmrm_ros" / name)]
+    if params:
+        cmd.append("--ros-args")
+        for k, v in params.items():
+            cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+    return cmd

@@ -256,3 +256,23 @@ def require_task(task: str):
         return task_info(task)
     except ValueError as exc:
         raise NodeError(str(exc)) from None
+
+
+def live_parameter(node, table: dict, name: str, apply: Callable[[str], str]) -> None:
+    """Let parameter `name` change while `node` runs: `apply(new value)` returns '' (accepted) or
+    why not (refused: `ros2 param set` prints the reason, and the node logs it). Every other
+    parameter of `table` is refused as "set at start only"."""
+    from rcl_interfaces.msg import SetParametersResult
+
+    def on_set(params):
+        for param in params:
+            if param.name == name:
+                error = apply(param.value)
+                if error:
+                    node.get_logger().warning(f"{name} {param.value!r} refused: {error}")
+                    return SetParametersResult(successful=False, reason=error)
+            elif param.name in table:
+                return SetParametersResult(successful=False, reason=f"{param.name} is set at start only")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
