@@ -197,6 +197,21 @@ def test_replay_as_fast_as_possible_waits_for_a_slow_subscriber(capture, tmp_pat
     assert got == [(e, t) for e in range(120) for t in range(int(ds.lengths[e]) + 1)], log
 
 
+def test_replay_stops_at_once_on_sigint(capture, tmp_path):
+    """Observations 10 ms apart played at rate 0.001 (one every 10 s): SIGINT after the first ends
+    the replay at once, exit 0, saying how far it got (it publishes in short slices, between which
+    the node handles signals; before, the whole bag was published inside one timer callback)."""
+    ds = generate_screened("key", 10, seed=4)
+    path = write_dataset_bag(ds, tmp_path / "bag", include_oracle=False)
+    rp = start("replay", bag=str(path), rate=0.001, topics="[/nmrm/observation]")
+    assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= 1, 30)
+    t0 = time.monotonic()
+    rp.send_signal(signal.SIGINT)
+    code, log = finish(rp, 30)
+    assert code == 0 and time.monotonic() - t0 < 5.0, log
+    assert "stopped after 1 messages" in log, log
+
+
 def test_training_from_bag_equals_training_in_memory(tmp_path):
     ds = generate_screened("key", 200, seed=3)
     path = write_dataset_bag(ds, tmp_path / "bag")

@@ -5,7 +5,8 @@ possible; the topics are reliable and keep-all (nmrm_ros.ros.topics), so subscri
 they have not taken yet and nothing is lost. `topics` filters (empty = all); `loop` starts over at the end. Before
 the first message the node waits for `wait_for_subscribers` subscribers on every replayed topic.
 Without `loop`, the node exits with code 0 after the last message. Before the first message the
-node also waits for the subscriptions of every node named in `wait_for_nodes`.
+node also waits for the subscriptions of every node named in `wait_for_nodes`. Messages are
+published in slices of at most 20 ms, so Ctrl-C or SIGTERM stops a replay at once (exit 0).
 """
 
 from __future__ import annotations
@@ -60,11 +61,14 @@ class ReplayNode(Node):
         self.ready_at = None
         self.published = 0
         self.retries = 0
+        self.messages = None  # the bag's messages while playing
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"replaying {self.path}: {', '.join(self.topics)} "
                                f"(rate {self.rate or 'as fast as subscribers take'})")
 
     def on_timer(self) -> None:
+        if self.messages is not None:
+            return self.play_some()
         subscribed = set().union(*(subscribed_nodes(self, pub.topic_name) for pub in self.pubs.values()))
         if (any(pub.get_subscription_count() < self.wait_for for pub in self.pubs.values())
                 or not subscribed >= self.wait_for_nodes) and self.ready_at is None:
@@ -76,30 +80,52 @@ class ReplayNode(Node):
         if time.monotonic() - self.ready_at < self.start_delay:
             return
         self.timer.cancel()
+        self.start_pass()
+        self.timer = self.create_timer(0.001, self.on_timer)
+
+    def start_pass(self) -> None:
+        self.messages = iter_raw(self.path, self.topics)
+        self.next = None
+        self.first_ns = None
+        self.start_wall = time.monotonic()
+
+    def play_some(self, budget_s: float = 0.02) -> None:
+        """Publish what is due, for at most `budget_s`, then return to the executor (so Ctrl-C and
+        SIGTERM stop a long replay at once)."""
+        until = time.monotonic() + budget_s
         try:
-            while True:
-                self.play_once()
-                if not self.loop:
-                    break
+            while time.monotonic() < until:
+                if self.next is None:
+                    self.next = next(self.messages, None)
+                    if self.next is None:
+                        if self.loop:
+                            self.start_pass()
+                            continue
+                        self.finish_playing()
+                        return
+                m = self.next
+                if self.rate > 0:
+                    self.first_ns = m.log_time_ns if self.first_ns is None else self.first_ns
+                    due = self.start_wall + (m.log_time_ns - self.first_ns) / 1e9 / self.rate
+                    if time.monotonic() < due:
+                        return
+                self._publish(self.pubs[m.topic], m.data)
+                self.published += 1
+                self.next = None
         except BagError as exc:
             self.get_logger().error(str(exc))
+            self.timer.cancel()
             self.exit_code = 1
-            return
+
+    def finish_playing(self) -> None:
+        self.timer.cancel()
         self.get_logger().info(f"replayed {self.published} messages"
                                + (f" ({self.retries} retries while subscribers caught up)" if self.retries else ""))
         self.exit_code = 0
 
-    def play_once(self) -> None:
-        start_wall = time.monotonic()
-        first = None
-        for m in iter_raw(self.path, self.topics):
-            if self.rate > 0:
-                first = m.log_time_ns if first is None else first
-                delay = (m.log_time_ns - first) / 1e9 / self.rate - (time.monotonic() - start_wall)
-                if delay > 0:
-                    time.sleep(delay)
-            self._publish(self.pubs[m.topic], m.data)
-            self.published += 1
+    def close(self) -> None:
+        if self.exit_code is None and self.messages is not None:
+            self.get_logger().info(f"stopped after {self.published} messages")
 
     def _publish(self, pub, data: bytes) -> None:
         """Publish; while the writer's keep-all history is full (bounded by the DDS resource
