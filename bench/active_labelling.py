@@ -1,6 +1,7 @@
 """How many labels the active ordering needs, versus oldest first: Key, the oracle playing the person.
 
-The real nodes: `replay` plays a pool of screened Key episodes (a bag) to `labeller_web` and
+The real nodes: `replay` plays a pool of screened Key episodes (a bag, in a random order seeded
+by the repeat's seed) to `labeller_web` and
 `trainer`; a simulated person answers the page's HTTP API: it takes the first episode of the
 queue and posts the oracle's return, `--batch` labels at a time, then waits for the trainer's
 next version (and, in the active arm, for the page to reorder by it) before going on, as a person
@@ -10,7 +11,8 @@ with the same oldest-first batch (there is no model yet). Each version is scored
 held-out screened test set (another data seed) with oracle rewards: return and reward MSE of the
 ensemble mean.
 
-    .venv/bin/python bench/active_labelling.py --seeds 0 1 2 --labels 200 --batch 20
+    .venv/bin/python bench/active_labelling.py --seeds 0 1 2 --labels 300 --batch 20 --pool 600
+    .venv/bin/python bench/active_labelling.py ... --screener-order --out bench/results/active_labelling_screener_order
 Writes bench/results/active_labelling.{json,txt,png}.
 """
 
@@ -116,6 +118,8 @@ def main() -> int:
     parser.add_argument("--test", type=int, default=500, help="screened Key test episodes (data seed 2)")
     parser.add_argument("--members", type=int, default=5)
     parser.add_argument("--max-epochs", type=int, default=40)
+    parser.add_argument("--screener-order", action="store_true",
+                        help="play the pool in the screener's order (key-then-treasure episodes last)")
     parser.add_argument("--out", type=Path, default=RESULTS / "active_labelling")
     args = parser.parse_args()
 
@@ -127,10 +131,14 @@ def main() -> int:
     pool = generate_screened("key", args.pool, seed=1)
     test = generate_screened("key", args.test, seed=2)
     work = Path(tempfile.mkdtemp(prefix="active_labelling_"))
-    pool_bag = write_dataset_bag(pool, work / "pool", include_oracle=False)
-    returns = {e: float(pool.returns[e]) for e in range(len(pool))}
     rows = []
     for seed in args.seeds:
+        # the screener fills its classes in turn (key-then-treasure episodes come last), so the
+        # pool is played in a seeded random order: "oldest first" is then a uniform sample
+        order = np.arange(len(pool)) if args.screener_order else np.random.default_rng(seed).permutation(len(pool))
+        shuffled = pool.subset(order)
+        pool_bag = write_dataset_bag(shuffled, work / f"pool_{seed}", include_oracle=False)
+        returns = {e: float(shuffled.returns[e]) for e in range(len(shuffled))}
         for arm in ("oldest", "active"):
             for labels, ckpt, seconds in run_arm(arm, seed, pool_bag, returns, work, args):
                 model, _ = load_checkpoint(ckpt, task="key")
@@ -138,7 +146,7 @@ def main() -> int:
                 rows.append({"arm": arm, "seed": seed, "labels": labels, "seconds": round(seconds, 1),
                              "return_mse": m["return_mse"], "reward_mse": m["reward_mse"]})
     wall = time.monotonic() - start
-    lines = [f"# Key, pool {args.pool} screened episodes (data seed 1), test {args.test} (data seed 2); "
+    lines = [f"# Key, pool {args.pool} screened episodes (data seed 1, played in {'the screener' if args.screener_order else 'a random'} order per seed), test {args.test} (data seed 2); "
              f"{args.members}-member CSC ensembles, {args.max_epochs} epochs per version, warm-started; "
              f"a version every {args.batch} labels; seeds {args.seeds}",
              "test MSE of the ensemble mean: mean over seeds [worst]",
