@@ -6,6 +6,7 @@ subcommands, so `nmrm --help` stays fast.
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import typer
@@ -531,11 +532,27 @@ def _dataset_summary(ds) -> str:
     return "\n".join(lines)
 
 
+def _interrupt_on_stop_signals() -> dict:
+    """SIGINT and SIGTERM raise KeyboardInterrupt, so an interrupted command cleans up (e.g. no
+    half-written bag is left) and exits with 128 + the signal. SIGINT is handled even where it was
+    inherited as ignored (a command started with `&` from a script): `kill -INT` must stop it."""
+    stopped_by: dict = {}
+
+    def interrupt(signum, frame):
+        stopped_by["signal"] = int(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, interrupt)
+    signal.signal(signal.SIGTERM, interrupt)
+    return stopped_by
+
+
 def main() -> None:
     """Console-script entry point. Errors (bad options, bad input files) are one line on stderr,
     `nmrm: error: ...`, exit code 2; `--help` and no arguments print the help."""
     from typer._click import exceptions as click_errors  # typer vendors click
 
+    stopped_by = _interrupt_on_stop_signals()
     try:
         code = app(standalone_mode=False)
     except click_errors.NoArgsIsHelpError:  # the help was printed already
@@ -544,9 +561,11 @@ def main() -> None:
         where = f"{exc.ctx.command_path}: " if getattr(exc, "ctx", None) is not None else "nmrm: "
         typer.echo(f"{where}error: {' '.join(exc.format_message().split())}", err=True)
         raise SystemExit(exc.exit_code) from None
-    except typer.Abort:
-        typer.echo("nmrm: interrupted", err=True)
-        raise SystemExit(130) from None
+    except (typer.Abort, KeyboardInterrupt):
+        stopped_by.setdefault("signal", int(signal.SIGINT))
+    if "signal" in stopped_by:  # typer turns KeyboardInterrupt into exit code 130
+        typer.echo(f"nmrm: interrupted ({signal.Signals(stopped_by['signal']).name})", err=True)
+        raise SystemExit(128 + stopped_by["signal"])
     raise SystemExit(code if isinstance(code, int) else 0)
 
 

@@ -310,19 +310,33 @@ def test_two_nodes_with_one_name_are_warned_about(ros_domain):
     assert all("2 nodes named /env_sim run in this ROS domain" in o for o in outs), outs
 
 
-def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path):
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize("sig, inherited", [
+    (signal.SIGINT, None),
+    (signal.SIGTERM, None),
+    # a command started with `&` from a script inherits SIGINT ignored; `kill -INT` must still stop
+    # it (a CI run started that way once saw this test fail: the bag was written to the end)
+    (signal.SIGINT, _ignore_sigint),
+])
+def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path, sig, inherited):
     """Finding 8: a failed `dataset generate` left a bag folder that blocked the re-run."""
     from graph_helpers import executable
 
     out = tmp_path / "key_bag"
     proc = subprocess.Popen([executable("nmrm"), "dataset", "generate", "--task", "key", "--episodes", "3000",
-                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=inherited)
     deadline = time.monotonic() + 120
     while not out.with_name("key_bag.partial").exists() and proc.poll() is None:
         assert time.monotonic() < deadline
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)  # in the middle of writing
-    proc.communicate(timeout=60)
+    proc.send_signal(sig)  # in the middle of writing
+    text, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig, text
+    assert "nmrm: interrupted" in text, text
     assert not out.exists() and not out.with_name("key_bag.partial").exists()
     again = _nmrm("dataset", "generate", "--task", "key", "--episodes", "20", "--out", str(out))
     assert again.returncode == 0, again.stdout + again.stderr

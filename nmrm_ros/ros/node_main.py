@@ -10,8 +10,10 @@ checkpoint...) into a one-line message and exit code 2.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import signal
 import sys
+import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -26,6 +28,8 @@ class Param:
 class NodeError(RuntimeError):
     """A configuration or input error that stops a node with a clear message."""
 
+
+SHUTDOWN_LIMIT_S = 30.0  # flush (<= 5 s), destroy, rclpy shutdown and interpreter exit together
 
 _TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a double", str: "a string"}
 
@@ -169,7 +173,12 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         if node is not None:
             close = getattr(node, "close", None)
             if close is not None:
-                close()
+                close()  # the node's own files (bags, checkpoints) are complete after this
+        # The DDS teardown below once hung for minutes on a loaded machine (a CI run: env_sim had
+        # said "done" and never exited). Bound it, through interpreter exit: past the limit every
+        # thread's stack is written to stderr and the process exits with code 1.
+        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+        if node is not None:
             _flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
@@ -195,13 +204,17 @@ def _warn_about_namesakes(node, after: float = 2.0) -> None:
 
 
 def _flush_publishers(node, timeout: float = 5.0) -> None:
-    """Wait (bounded) until reliable subscribers acknowledged what we published, so the last
-    messages (an episode's final observation, its label) are not lost when the process exits."""
+    """Wait (at most `timeout` s in all) until reliable subscribers acknowledged what we published,
+    so the last messages (an episode's final observation, its label) are not lost at exit."""
     from rclpy.duration import Duration
 
+    deadline = time.monotonic() + timeout
     for pub in list(node.publishers):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
         try:
-            pub.wait_for_all_acked(Duration(seconds=timeout))
+            pub.wait_for_all_acked(Duration(seconds=left))
         except Exception:  # noqa: BLE001 - best effort at shutdown
             pass
 
