@@ -1,10 +1,15 @@
 """Reproduce the paper's MIL reward-modelling tables: the toy table (App. C.3) and Table 1 (the four
-2D navigation tasks), for all four architectures, as mean +/- SEM over repeats beside the paper.
+2D navigation tasks and Lunar Lander), for all four architectures, as mean +/- SEM over repeats
+beside the paper.
 
     .venv/bin/python bench/reproduce_tables.py                  # quick: 1 repeat
     .venv/bin/python bench/reproduce_tables.py --repeats 10     # the paper's protocol
     .venv/bin/python bench/reproduce_tables.py --tables nav --tasks key charger --archs csc_lstm
     .venv/bin/python bench/reproduce_tables.py --tasks timer --archs csc_lstm --set lr=1e-3
+    .venv/bin/python bench/reproduce_tables.py --tables ll --repeats 4 --archs csc_lstm
+
+Lunar Lander (App. D.4): MSEs in the paper's scaled units (returns / 100; reward MSE shown x 1e5),
+over all repeats and over the best half by reward MSE (the paper's "top 5 of 10").
 
 Repeat r trains with weight seed r on split r (80/10/10) of one dataset per task (data seed
 --data-seed, default 0), as the paper repeated its experiments over ten splits. The repeats of one
@@ -29,27 +34,39 @@ import numpy as np
 ARCHS = ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
 TOY = ("toggle_switch", "push_switch", "dial")
 NAV = ("timer", "moving", "key", "charger")
+LL = ("lunar_lander",)
+TABLES = {"toy": TOY, "nav": NAV, "ll": LL}
+LL_REWARD_UNIT = 1e-5  # the paper's Lunar Lander reward MSEs are given in units of 1e-5
 
-# Paper values (mean, SEM): App. C Table "toy results" and Sec. 4 Table 1.
+# Paper values (mean, SEM): App. C Table "toy results" and Sec. 4 Table 1 (Lunar Lander: its top 5 of
+# 10 by reward MSE, scaled units; reward MSE in units of 1e-5).
 PAPER_RETURN = {
     "instance_nn": {"toggle_switch": (0.030, 0.029), "push_switch": (3.337, 0.054), "dial": (5.489, 0.157),
-                    "timer": (130.8, 1.530), "moving": (22.24, 0.441), "key": (7.764, 0.232), "charger": (7.783, 0.214)},
+                    "timer": (130.8, 1.530), "moving": (22.24, 0.441), "key": (7.764, 0.232), "charger": (7.783, 0.214),
+                    "lunar_lander": (2.297, 0.058)},
     "embedding_lstm": {"toggle_switch": (0.008, 0.002), "push_switch": (0.663, 0.194), "dial": (0.434, 0.075),
-                       "timer": (3.151, 0.662), "moving": (13.04, 0.899), "key": (0.360, 0.055), "charger": (0.689, 0.124)},
+                       "timer": (3.151, 0.662), "moving": (13.04, 0.899), "key": (0.360, 0.055), "charger": (0.689, 0.124),
+                       "lunar_lander": (0.416, 0.048)},
     "instance_lstm": {"toggle_switch": (0.062, 0.058), "push_switch": (0.262, 0.154), "dial": (0.111, 0.014),
-                      "timer": (7.313, 2.627), "moving": (11.13, 1.169), "key": (0.488, 0.062), "charger": (0.628, 0.126)},
+                      "timer": (7.313, 2.627), "moving": (11.13, 1.169), "key": (0.488, 0.062), "charger": (0.628, 0.126),
+                      "lunar_lander": (1.223, 0.431)},
     "csc_lstm": {"toggle_switch": (0.000, 0.000), "push_switch": (0.140, 0.065), "dial": (0.121, 0.043),
-                 "timer": (0.605, 0.166), "moving": (5.307, 0.299), "key": (0.391, 0.083), "charger": (0.125, 0.012)},
+                 "timer": (0.605, 0.166), "moving": (5.307, 0.299), "key": (0.391, 0.083), "charger": (0.125, 0.012),
+                 "lunar_lander": (0.501, 0.035)},
 }
 PAPER_REWARD = {
     "instance_nn": {"toggle_switch": (0.002, 0.002), "push_switch": (0.086, 0.001), "dial": (0.954, 0.011),
-                    "timer": (0.217, 0.001), "moving": (0.068, 0.000), "key": (0.011, 0.000), "charger": (0.025, 0.000)},
+                    "timer": (0.217, 0.001), "moving": (0.068, 0.000), "key": (0.011, 0.000), "charger": (0.025, 0.000),
+                    "lunar_lander": (7.484, 0.861)},
     "embedding_lstm": {"toggle_switch": (0.003, 0.001), "push_switch": (0.206, 0.100), "dial": (0.244, 0.077),
-                       "timer": (101.8, 60.35), "moving": (3.033, 0.715), "key": (0.010, 0.008), "charger": (0.037, 0.016)},
+                       "timer": (101.8, 60.35), "moving": (3.033, 0.715), "key": (0.010, 0.008), "charger": (0.037, 0.016),
+                       "lunar_lander": (120.2, 24.27)},
     "instance_lstm": {"toggle_switch": (0.004, 0.004), "push_switch": (0.021, 0.008), "dial": (0.026, 0.004),
-                      "timer": (0.263, 0.038), "moving": (0.069, 0.005), "key": (0.002, 0.000), "charger": (0.005, 0.001)},
+                      "timer": (0.263, 0.038), "moving": (0.069, 0.005), "key": (0.002, 0.000), "charger": (0.005, 0.001),
+                      "lunar_lander": (9.336, 3.116)},
     "csc_lstm": {"toggle_switch": (0.000, 0.000), "push_switch": (0.012, 0.004), "dial": (0.022, 0.007),
-                 "timer": (0.073, 0.016), "moving": (0.026, 0.002), "key": (0.001, 0.000), "charger": (0.001, 0.000)},
+                 "timer": (0.073, 0.016), "moving": (0.026, 0.002), "key": (0.001, 0.000), "charger": (0.001, 0.000),
+                 "lunar_lander": (7.365, 1.032)},
 }
 
 
@@ -98,11 +115,30 @@ def run_ensemble(job: tuple) -> list:
 
     run = train_ensemble_and_evaluate(ds, arch, cfg, members=repeats, split_seed=0,
                                       split_mode="per_member", progress=False, on_epoch=log)
-    return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed,
-             "return_mse": run.member_test[r]["return_mse"], "reward_mse": run.member_test[r]["reward_mse"],
+    return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
+             **table_metrics(task, run.member_test[r]),
              "seconds": run.train.seconds, "epochs": run.train.epochs_run,
              "best_epoch": run.train.best_epochs[r], "still_improving": run.train.still_improving[r],
              "config": cfg.to_dict()} for r in range(repeats)]
+
+
+def table_metrics(task: str, test: dict) -> dict:
+    """The test MSEs in the paper's table units: label units, except Lunar Lander (returns / 100,
+    reward MSE in units of 1e-5); label-unit values kept beside."""
+    if task not in LL:
+        return {"return_mse": test["return_mse"], "reward_mse": test["reward_mse"]}
+    return {"return_mse": test["return_mse_scaled"], "reward_mse": test["reward_mse_scaled"] / LL_REWARD_UNIT,
+            "return_mse_label_units": test["return_mse"], "reward_mse_label_units": test["reward_mse"]}
+
+
+def best_half(results: list) -> list:
+    """The paper's Lunar Lander protocol: per (task, architecture), the best half of the repeats
+    by reward MSE (its "top 5 of 10")."""
+    keep = []
+    for key in sorted({(r["task"], r["arch"]) for r in results}):
+        rs = sorted((r for r in results if (r["task"], r["arch"]) == key), key=lambda r: r["reward_mse"])
+        keep.extend(rs[: max(1, len(rs) // 2)])
+    return keep
 
 
 def mean_sem(values: list) -> tuple:
@@ -150,10 +186,12 @@ def print_bar_check(results: list, tasks: tuple, archs: tuple) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=1)
-    parser.add_argument("--tables", nargs="*", default=["toy", "nav"], choices=["toy", "nav"])
+    parser.add_argument("--tables", nargs="*", default=["toy", "nav"], choices=list(TABLES),
+                        help="toy, nav (Timer, Moving, Key, Charger), ll (Lunar Lander; not in the default)")
     parser.add_argument("--tasks", nargs="*", default=None, help="subset of tasks")
     parser.add_argument("--archs", nargs="*", default=list(ARCHS))
-    parser.add_argument("--n", type=int, default=5000, help="bags per dataset (paper: 5000)")
+    parser.add_argument("--n", type=int, default=5000,
+                        help="bags per dataset (paper: 5000; Lunar Lander 9762)")
     parser.add_argument("--max-epochs", type=int, default=None, help="override (for a smoke run)")
     parser.add_argument("--data-seed", type=int, default=0)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
@@ -163,7 +201,7 @@ def main() -> None:
     parser.add_argument("--log-every", type=int, default=0, help="print validation MSE every N epochs")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
     args = parser.parse_args()
-    tasks = tuple(t for table in args.tables for t in (TOY if table == "toy" else NAV))
+    tasks = tuple(t for table in args.tables for t in TABLES[table])
     if args.tasks:
         tasks = tuple(t for t in tasks if t in args.tasks)
     overrides = parse_overrides(args.set)
@@ -190,6 +228,16 @@ def main() -> None:
             print_table(results, sel, "return_mse", PAPER_RETURN, tuple(args.archs))
             print_table(results, sel, "reward_mse", PAPER_REWARD, tuple(args.archs))
             print_bar_check(results, sel, tuple(args.archs))
+    if "lunar_lander" in tasks:
+        print("\nLunar Lander, all repeats (returns / 100; reward MSE x 1e5)", end="")
+        print_table(results, LL, "return_mse", PAPER_RETURN, tuple(args.archs))
+        print_table(results, LL, "reward_mse", PAPER_REWARD, tuple(args.archs))
+        best = best_half(results)
+        print("\nLunar Lander, the best half by reward MSE (the paper's protocol: top 5 of 10): repeats "
+              + ", ".join(f"{r['arch']} {r['repeat']}" for r in best), end="")
+        print_table(best, LL, "return_mse", PAPER_RETURN, tuple(args.archs))
+        print_table(best, LL, "reward_mse", PAPER_REWARD, tuple(args.archs))
+        print_bar_check(results, LL, tuple(args.archs))
     print(f"\n# wall time {time.perf_counter() - start:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

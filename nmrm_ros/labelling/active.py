@@ -22,13 +22,10 @@ class DisagreementScorer:
     """`score(states (L, d) instances) -> (spread, mean)` of the members' predicted returns."""
 
     def __init__(self, checkpoint: str, task: str) -> None:
-        from ..mil import CheckpointError, load_checkpoint
+        from ..mil import load_checkpoint
         from ..mil.ensemble import MILEnsemble
 
-        try:
-            model, meta = load_checkpoint(checkpoint, task=task)
-        except CheckpointError:
-            raise
+        model, _ = load_checkpoint(checkpoint, task=task)  # CheckpointError says why it is refused
         self.model = model.eval()
         self.source = str(checkpoint)
         self.members = model.members if isinstance(model, MILEnsemble) else 1
