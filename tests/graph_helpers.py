@@ -19,6 +19,8 @@ from nmrm_ros.ros.topics import (ACTION, OBSERVATION, ORACLE_STEP, REWARD_STEP, 
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = REPO / "launch_scripts" / "graph.launch.yaml"
+#: episodes from this number on are `Capture.handshake` probes
+PROBE_EPISODE = 1000
 
 
 def executable(name: str) -> str:
@@ -80,6 +82,27 @@ class Capture:
         self.wait_for_publishers(publishers, timeout)
         for key in self.deferred:
             self._subscribe(key)
+
+    def handshake(self, send_probe, topics: tuple, first_episode: int = PROBE_EPISODE,
+                  timeout: float = 30.0) -> int:
+        """Send probe episodes `first_episode`, +1, ... (`send_probe(episode)` publishes one)
+        until a reply to one of them arrived on each of `topics`; returns how many were sent.
+
+        Matching counts say only what this process has matched: a node's publisher may not yet
+        have matched the capture's subscription (or its subscription this publisher), and with
+        volatile topics whatever it publishes before that is lost to the capture (a CI run lost
+        a label so). A reply on each topic proves both directions. Tests ignore the probes'
+        episodes (>= first_episode)."""
+        deadline = time.monotonic() + timeout
+        sent = 0
+        def answered():
+            return all(any(m.episode >= first_episode for m in self.msgs[t]) for t in topics)
+        while time.monotonic() < deadline:
+            send_probe(first_episode + sent)
+            sent += 1
+            if self.spin_until(answered, 1.0):
+                return sent
+        raise AssertionError(f"no reply on {topics} to {sent} probe episode(s) in {timeout} s")
 
     def publisher(self, typ, topic):
         return self.node.create_publisher(typ, topic, STEP_QOS)

@@ -1,12 +1,13 @@
 """The node graph over real topics, each node its own process (each test on its own domain)."""
 
+import re
 import sys
 from collections import Counter
 
 import numpy as np
 import pytest
 
-from graph_helpers import Capture, episodes_of, finish, launch, start
+from graph_helpers import PROBE_EPISODE, Capture, episodes_of, finish, launch, start
 from nmrm_msgs.msg import EnvObservation
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import load_checkpoint, load_train_config
@@ -119,10 +120,12 @@ def test_bad_observations_are_dropped_and_counted(capture):
     rm = start("reward_model", mode="oracle", task="key")
     lab = start("labeller_oracle", task="key")
     pub = capture.publisher(EnvObservation, OBSERVATION)
-    assert capture.spin_until(lambda: pub.get_subscription_count() >= 3, 30)  # rm, lab, capture
-    capture.wait_for_publishers({"reward_step": 1, "label": 1}, 30)
     def obs(e, t, state, truncated=False):
         return EnvObservation(task="key", episode=e, step=t, state=state, truncated=truncated)
+    def probe(e):
+        pub.publish(obs(e, 0, [0.5, 0.5]))
+        pub.publish(obs(e, 1, [0.5, 0.5], truncated=True))
+    capture.handshake(probe, ("reward_step", "label"))
     sent = [obs(0, 0, [0.5, 0.5]), obs(0, 1, [0.5, 0.5, 0.5]),                  # wrong size
             obs(1, 0, [0.5, 0.5]), obs(1, 1, [float("nan"), 0.5]),             # NaN
             obs(2, 0, [0.5, 0.5]), obs(2, 2, [0.5, 0.6]),                      # step 1 missing
@@ -130,7 +133,7 @@ def test_bad_observations_are_dropped_and_counted(capture):
             obs(3, 2, [0.5, 0.8], truncated=True)]
     for m in sent:
         pub.publish(m)
-    assert capture.spin_until(lambda: len(capture.msgs["label"]) >= 1, 20)
+    assert capture.spin_until(lambda: any(m.episode == 3 for m in capture.msgs["label"]), 20)
     capture.spin_for(0.5)
     for p in (rm, lab):
         p.send_signal(2)
@@ -138,12 +141,21 @@ def test_bad_observations_are_dropped_and_counted(capture):
     code_lab, out_lab = finish(lab)
     assert code_rm == 0 and code_lab == 0
     # only episode 3 was labelled: key at t = 0, treasure at t = 1 -> return 1
-    assert [(m.episode, m.return_value, m.length) for m in capture.msgs["label"]] == [(3, 1.0, 2)]
-    published = Counter((m.episode, m.step) for m in capture.msgs["reward_step"])
+    labels = [(m.episode, m.return_value, m.length) for m in capture.msgs["label"] if m.episode < PROBE_EPISODE]
+    assert labels == [(3, 1.0, 2)]
+    published = Counter((m.episode, m.step) for m in capture.msgs["reward_step"] if m.episode < PROBE_EPISODE)
     assert set(published) == {(0, 0), (1, 0), (2, 0), (3, 0), (3, 1), (3, 2)}
     assert published[(3, 1)] == 2  # the duplicate got the same answer again
     assert "size 3, expected 2" in out_rm and "NaN" in out_rm and "out of order" in out_rm
-    assert "3 broken episode(s)" in out_rm and "labelled 1 episode(s), 3 broken" in out_lab
+    # a probe the node saw only in part (before it matched the capture) is broken too
+    def broken_probes(out, pattern):
+        return sum(int(e) >= PROBE_EPISODE for e in re.findall(pattern, out))
+    rm_broken = 3 + broken_probes(out_rm, r"episode (\d+) broken at step")
+    lab_broken = 3 + broken_probes(out_lab, r"episode (\d+) not labelled")
+    assert f"{rm_broken} broken episode(s)" in out_rm, out_rm
+    assert re.search(rf"labelled \d+ episode\(s\), {lab_broken} broken", out_lab), out_lab
+    for e in range(3):
+        assert f"episode {e} not labelled" in out_lab and f"episode {e} broken at step" in out_rm
 
 
 def test_reward_model_serves_an_ensemble(capture, tmp_path):
@@ -158,18 +170,20 @@ def test_reward_model_serves_an_ensemble(capture, tmp_path):
                                       members=3, out=tmp_path / "ens", progress=False)
     rm = start("reward_model", mode="model", checkpoint=str(run.checkpoint), task="key")
     pub = capture.publisher(EnvObservation, OBSERVATION)
-    assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)
-    capture.wait_for_publishers({"reward_step": 1}, 30)
+    capture.handshake(lambda e: pub.publish(EnvObservation(task="key", episode=e, step=0, state=[0.5, 0.5])),
+                      ("reward_step",))
     states = ds.states[0, :6].astype(float)
     for t, s in enumerate(states):
         pub.publish(EnvObservation(task="key", episode=0, step=t, state=list(s), truncated=t == 5))
-    assert capture.spin_until(lambda: len(capture.msgs["reward_step"]) >= 6, 20)
+    def served():
+        return sorted((m for m in capture.msgs["reward_step"] if m.episode == 0), key=lambda m: m.step)
+    assert capture.spin_until(lambda: len(served()) >= 6, 20)
     rm.send_signal(2)
     code, out = finish(rm)
     assert code == 0, out
     model, _ = load_checkpoint(run.checkpoint)
     online = OnlineRewardModel(model)
-    for m, s in zip(sorted(capture.msgs["reward_step"], key=lambda m: m.step), states):
+    for m, s in zip(served(), states):
         reward, hidden = online.step(s)
         assert m.reward == pytest.approx(reward, abs=1e-5)
         assert m.reward_std == pytest.approx(online.reward_std, abs=1e-5) and m.reward_std > 0
@@ -241,18 +255,19 @@ def test_agent_runs_a_saved_sb3_policy(capture, tmp_path):
     policy.save(tmp_path / "dqn.zip")
     agent = start("agent", task="key", policy="sb3", policy_path=str(tmp_path / "dqn.zip"))
     pub = capture.publisher(RewardStep, REWARD_STEP)
-    assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)  # agent + capture
+    capture.handshake(lambda e: pub.publish(RewardStep(episode=e, step=0, augmented_state=[0.5, 0.5, 0.0])),
+                      ("action",))
     rng = np.random.default_rng(0)
     states = rng.uniform(0, 1, (20, 3)).astype(np.float32)
     for t, s in enumerate(states):
         pub.publish(RewardStep(episode=0, step=t, augmented_state=s.tolist()))
     pub.publish(RewardStep(episode=0, step=20, augmented_state=[0.0, 0.0, 0.0], truncated=True))
-    assert capture.spin_until(lambda: len(capture.msgs["action"]) >= 20, 30)
+    assert capture.spin_until(lambda: sum(m.episode == 0 for m in capture.msgs["action"]) >= 20, 30)
     capture.spin_for(0.3)
     agent.send_signal(2)
     code, out = finish(agent)
     assert code == 0, out
-    got = {(m.episode, m.step): m.action[0] for m in capture.msgs["action"]}
+    got = {(m.episode, m.step): m.action[0] for m in capture.msgs["action"] if m.episode == 0}
     assert len(got) == 20  # none for the final step
     expected, _ = policy.predict(states, deterministic=True)
     assert [got[(0, t)] for t in range(20)] == [float(a) for a in expected]
