@@ -59,6 +59,24 @@ def test_label_store_keeps_labels_of_a_killed_session(tmp_path):
     assert store.labelled_episodes("key") == {0, 1, 2} and store.labelled_episodes("timer") == set()
 
 
+def test_waiting_episodes_survive_a_restart_and_are_pruned(tmp_path):
+    """Kept episodes are read back oldest first; labelled ones and those beyond max_episodes are
+    removed; an unreadable file is reported and left; other tasks' files are not touched."""
+    from nmrm_ros.labelling import WaitingEpisodes
+
+    store = WaitingEpisodes(tmp_path, "key")
+    for episode, at in ((3, 30.0), (1, 10.0), (2, 20.0), (4, 40.0)):
+        store.save(episode, np.full((5, 2), episode, np.float32), finished_at=at)
+    WaitingEpisodes(tmp_path, "timer").save(1, np.zeros((3, 2)), finished_at=1.0)
+    (tmp_path / "key_9.npz").write_bytes(b"not a npz")
+    assert not list(tmp_path.glob("*.tmp"))
+    kept, errors = WaitingEpisodes(tmp_path, "key").load(skip={4}, max_episodes=2)
+    assert [(e.episode, e.finished_at) for e in kept] == [(2, 20.0), (3, 30.0)]
+    np.testing.assert_array_equal(kept[0].states, np.full((5, 2), 2, np.float32))
+    assert len(errors) == 1 and "key_9.npz" in errors[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["key_2.npz", "key_3.npz", "key_9.npz", "timer_1.npz"]
+
+
 # -- the node ------------------------------------------------------------------------------------
 class WebNode:
     """labeller_web as a process (port 0), its output collected, its URL read from its log."""
@@ -154,8 +172,9 @@ def test_page_refuses_bad_requests(ros_domain, tmp_path):
 
 def test_labels_reach_the_topic_and_the_bag_and_a_restart_asks_nothing_twice(ros_domain, tmp_path):
     """Label episodes 0 and 1 of three (and correct 1): the labels are on the topic and in the
-    labels bag at once; kill -9; a restarted node offered the same three episodes asks only for
-    episode 2, and the first session's labels (correction last) are all in its repaired bag."""
+    labels bag at once; kill -9; a restarted node offers the unlabelled episode 2 at once and,
+    offered the same three episodes again, asks only for episode 2; the first session's labels
+    (correction last) are all in its repaired bag."""
     labels_dir = tmp_path / "labels"
     capture = Capture()
     try:
@@ -175,14 +194,19 @@ def test_labels_reach_the_topic_and_the_bag_and_a_restart_asks_nothing_twice(ros
         node.stop(signal.SIGKILL)
 
         node = WebNode(labels_dir)
+        # the unlabelled episode 2 of the killed run waits again, before any episode is played
+        assert [e["episode"] for e in node.wait_for_queue(1)] == [2]
         play_episodes(3)
         time.sleep(1.0)
         assert [e["episode"] for e in node.wait_for_queue(1)] == [2]
+        assert node.request("/api/label", {"episode": 2, "return": 5.0})[0] == 200
         out = node.stop()
+        assert not list((labels_dir / ".waiting_episodes").iterdir())  # labelled: no longer kept
     finally:
         capture.close()
     assert "repaired the labels bag of an interrupted session" in out, out
-    first = sorted(p for p in labels_dir.iterdir() if p.is_dir())[0]
+    assert "1 unlabelled episode(s) from before wait for a label" in out, out
+    first = sorted(p for p in labels_dir.iterdir() if p.is_dir() and not p.name.startswith("."))[0]
     stored = [(m.episode, m.return_value) for _, _, _, m in iter_decoded(first)]
     assert stored == [(0, 10.0), (1, 20.0), (1, 21.5)]
 
@@ -243,5 +267,5 @@ def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
     finally:
         node.stop()
         capture.close()
-    session = next(p for p in labels_dir.iterdir() if p.is_dir())
+    session = next(p for p in labels_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
     assert [(m.episode, m.return_value) for _, _, _, m in iter_decoded(session)] == [(0, 7.25)]

@@ -5,7 +5,8 @@ Plain Python (aiohttp for the page); the `labeller_web` node is the ROS adapter 
 
 from .label_store import LabelStore, StoredLabel
 from .queue import Episode, LabelError, LabelQueue, return_range
+from .waiting_episodes import WaitingEpisode, WaitingEpisodes
 from .web_app import WebServer, make_app
 
-__all__ = ["Episode", "LabelError", "LabelQueue", "LabelStore", "StoredLabel", "WebServer",
-           "make_app", "return_range"]
+__all__ = ["Episode", "LabelError", "LabelQueue", "LabelStore", "StoredLabel", "WaitingEpisode",
+           "WaitingEpisodes", "WebServer", "make_app", "return_range"]

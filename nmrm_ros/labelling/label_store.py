@@ -16,6 +16,7 @@ from pathlib import Path
 from ..bags import BagError, BagWriter, iter_decoded, repair_bag
 
 T_RET = "nmrm_msgs/msg/TrajectoryReturn"
+WAITING_DIR = ".waiting_episodes"  # the labelling node's unlabelled episodes (waiting_episodes.py): hidden from shell globs, not a session
 
 
 @dataclass
@@ -50,7 +51,7 @@ class LabelStore:
     def _read_earlier(self) -> list:
         labels: list = []
         for session in sorted(p for p in self.directory.iterdir() if p.is_dir()):
-            if session.name.endswith(".repairing"):
+            if session.name.endswith(".repairing") or session.name == WAITING_DIR:
                 continue
             if not (session / "metadata.yaml").is_file():
                 try:

@@ -14,6 +14,8 @@ written and flushed to a labels-only bag in `labels_dir` (one bag per session), 
 Ctrl-C loses no label. A second label of an episode is a correction: a new TrajectoryReturn;
 training uses the latest label per labeller and episode. At start the node reads `labels_dir`
 (repairing a session that was killed) and does not ask again for episodes labelled before.
+Finished, unlabelled episodes are kept in `labels_dir`/.waiting_episodes/ until labelled, so a
+restarted node offers them again (a crash costs at most the episode in progress).
 
 Safety: binds 127.0.0.1 unless `host` says otherwise; on any other address every request needs
 the access token (`token`, or one generated and printed at start); bodies over 4 KiB are refused.
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import secrets
 import time
+from pathlib import Path
 
 import numpy as np
 from rclpy.node import Node
@@ -56,7 +59,8 @@ class LabellerWebNode(Node):
         self.messages_received = 0
         super().__init__("labeller_web")
         p = declare_parameters(self, PARAMETERS)
-        from ..labelling import LabelQueue, LabelStore, WebServer, make_app
+        from ..labelling import LabelQueue, LabelStore, WaitingEpisodes, WebServer, make_app
+        from ..labelling.label_store import WAITING_DIR
 
         self.info = require_task(p["task"])
         self.task = p["task"]
@@ -78,6 +82,8 @@ class LabellerWebNode(Node):
         self.queue.done_before = self.store.labelled_episodes(self.task)
         for session in self.store.repaired:
             self.get_logger().warning(f"repaired the labels bag of an interrupted session: {session}")
+        self.waiting = WaitingEpisodes(Path(p["labels_dir"]) / WAITING_DIR, self.task)
+        self._offer_waiting_episodes(int(p["max_episodes"]))
         self.follower = EpisodeFollower()
         self.states: list = []
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
@@ -95,6 +101,21 @@ class LabellerWebNode(Node):
                                f"{self.store.path})")
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
+
+    def _offer_waiting_episodes(self, max_episodes: int) -> None:
+        """Queue the unlabelled episodes an earlier run of this node kept."""
+        kept, errors = self.waiting.load(self.queue.done_before, max_episodes)
+        for line in errors:
+            self.get_logger().warning(f"kept episode not offered: {line}")
+        offered = 0
+        for ep in kept:
+            if ep.states.shape[1] != self.info.state_size:
+                self.get_logger().warning(f"kept episode {ep.episode} not offered: states of size "
+                                          f"{ep.states.shape[1]}, {self.task} has {self.info.state_size}")
+                continue
+            offered += self.queue.add(ep.episode, ep.states, finished_at=ep.finished_at)
+        if offered:
+            self.get_logger().info(f"{offered} unlabelled episode(s) from before wait for a label")
 
     def _use_checkpoint(self, path: str) -> str:
         """Order the queue by `path`'s members' disagreement ('' : oldest first); an error or ''."""
@@ -125,7 +146,13 @@ class LabellerWebNode(Node):
         self.states.append(state)
         if msg.terminated or msg.truncated:
             self.follower.finish()
-            if msg.step > 0 and self.queue.add(int(msg.episode), np.stack(self.states)):
+            states, finished_at = np.stack(self.states), time.time()
+            if msg.step > 0 and self.queue.add(int(msg.episode), states, finished_at=finished_at):
+                try:
+                    self.waiting.save(int(msg.episode), states, finished_at)
+                except OSError as exc:
+                    self.get_logger().warning(f"episode {msg.episode} not kept on disk (a restart will "
+                                              f"not offer it again): {exc}")
                 self.get_logger().info(f"episode {msg.episode} ({msg.step} steps) waits for a label")
             self.states = []
 
@@ -133,6 +160,7 @@ class LabellerWebNode(Node):
     def on_label(self, label, episode) -> None:
         stamp = time.time_ns()
         self.store.append(self.task, episode.episode, episode.length, label.value, stamp)
+        self.waiting.remove(episode.episode)
         out = TrajectoryReturn(task=self.task, episode=episode.episode, length=episode.length,
                                return_value=float(label.value), labeller=self.labeller)
         out.header.stamp.sec, out.header.stamp.nanosec = stamp // 10**9, stamp % 10**9
