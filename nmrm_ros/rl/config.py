@@ -49,23 +49,29 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
 
     episode_length: steps per episode T (SB3 plans its epsilon schedule over `episodes * T` steps).
     """
-    total = int(cfg["episodes"]) * int(episode_length)
     policy_kwargs = {"net_arch": list(cfg["net_arch"]),
                      "optimizer_kwargs": {"fused": bool(cfg.get("fused_adam", False))}}
     if algo == "dqn":
+        import warnings
+
         from .double_dqn import DoubleDQN
 
-        return DoubleDQN(
-            "MlpPolicy", env, seed=seed, verbose=verbose, device="cpu",
-            learning_rate=cfg["learning_rate"], buffer_size=int(cfg["buffer_size"]),
-            learning_starts=int(cfg["learning_starts"]), batch_size=int(cfg["batch_size"]),
-            tau=cfg["tau"], gamma=cfg["gamma"], train_freq=int(cfg["train_freq"]),
-            gradient_steps=int(cfg["gradient_steps"]),
-            target_update_interval=int(cfg["target_update_interval"]),
-            exploration_fraction=float(cfg["exploration_fraction"]),
-            exploration_initial_eps=cfg["exploration_initial_eps"],
-            exploration_final_eps=cfg["exploration_final_eps"], max_grad_norm=cfg["max_grad_norm"],
-            double_q=bool(cfg["double_q"]), policy_kwargs=policy_kwargs)
+        with warnings.catch_warnings():
+            # With n_envs > 1 (a fleet learner) SB3 warns that the target network then moves once
+            # per env.step() call, i.e. per n_envs transitions. That is once per gradient step
+            # (train_freq 1, gradient_steps 1), which is what Polyak averaging every step means.
+            warnings.filterwarnings("ignore", message="The number of environments used is greater than the target")
+            return DoubleDQN(
+                "MlpPolicy", env, seed=seed, verbose=verbose, device="cpu",
+                learning_rate=cfg["learning_rate"], buffer_size=int(cfg["buffer_size"]),
+                learning_starts=int(cfg["learning_starts"]), batch_size=int(cfg["batch_size"]),
+                tau=cfg["tau"], gamma=cfg["gamma"], train_freq=int(cfg["train_freq"]),
+                gradient_steps=int(cfg["gradient_steps"]),
+                target_update_interval=int(cfg["target_update_interval"]),
+                exploration_fraction=float(cfg["exploration_fraction"]),
+                exploration_initial_eps=cfg["exploration_initial_eps"],
+                exploration_final_eps=cfg["exploration_final_eps"], max_grad_norm=cfg["max_grad_norm"],
+                double_q=bool(cfg["double_q"]), policy_kwargs=policy_kwargs)
     if algo == "sac":
         from .sac import SplitLRSAC
 
