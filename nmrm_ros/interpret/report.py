@@ -97,7 +97,7 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
         for (source, episode), rec in list(read_episodes(bag).items())[:episodes]:
             learnt, hidden = model_traces(model, rec.states) if rec.task == task else (None, None)
             oracle_h = oracle_traces(rec.task, rec.states)[1]
-            where = f"{source or '/'} episode {episode}"
+            where = f"episode {episode}" + (f" of {source}" if source.strip("/") else "")
             rewards = {"served" + (f" ({', '.join(rec.served_by)})" if rec.served_by else ""): rec.served,
                        f"oracle ({'recorded' if rec.oracle_recorded else 'computed'})": rec.oracle,
                        f"this model ({name})": learnt}
