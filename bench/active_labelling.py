@@ -18,6 +18,7 @@ Writes bench/results/active_labelling.{json,txt,png}.
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import json
 import os

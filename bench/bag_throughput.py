@@ -15,6 +15,7 @@ Run with scripts/ros_env.sh sourced.
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import re
 import signal

@@ -11,6 +11,7 @@ threads. The ratio uses each side's faster thread count. Nothing else should run
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import sys
 from pathlib import Path

@@ -20,6 +20,7 @@ tracebacks, hangs, silently corrupted results, episodes lost.
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import os
 import random

@@ -10,6 +10,7 @@ epochs, seed 0). Run with scripts/ros_env.sh sourced (AMENT_PREFIX_PATH, ROS_DOM
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import re
 import subprocess

@@ -13,6 +13,7 @@ bag is read back and must hold every label.
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import os
 import shutil

@@ -14,6 +14,7 @@ smallest p at which the CSC model is as bad as the noise-free Instance Space NN)
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import json
 import sys

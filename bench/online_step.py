@@ -6,6 +6,7 @@ each architecture at 2D-navigation and Lunar Lander sizes, and for a 10-member C
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import time
 

@@ -19,6 +19,7 @@ bench/results/reproduce_rl/agents/ (copy them into --work/agents to continue an 
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import csv
 import json

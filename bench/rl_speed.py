@@ -15,6 +15,7 @@ Prints steps/s and the graph/wrapper ratio (target: at most 1.5x).
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import os
 import shutil

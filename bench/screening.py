@@ -7,6 +7,7 @@ Prints one row per task: trajectories kept, trajectories drawn (examined), secon
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import os
 import platform

@@ -14,6 +14,7 @@ validation MSE. Also printed: seconds per epoch of each (median over the epochs 
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import sys
 import time
