@@ -7,6 +7,8 @@ beside the paper.
     .venv/bin/python bench/reproduce_tables.py --tables nav --tasks key charger --archs csc_lstm
     .venv/bin/python bench/reproduce_tables.py --tasks timer --archs csc_lstm --set lr=1e-3
     .venv/bin/python bench/reproduce_tables.py --tables ll --repeats 4 --archs csc_lstm
+    .venv/bin/python bench/reproduce_tables.py --tasks moving --archs csc_lstm --seeds 1 3 --json a.json
+    .venv/bin/python bench/reproduce_tables.py --from-json a.json b.json   # one table of both runs
 
 Lunar Lander (App. D.4): MSEs in the paper's scaled units (returns / 100; reward MSE shown x 1e5),
 over all repeats and over the best half by reward MSE (the paper's "top 5 of 10").
@@ -22,6 +24,7 @@ the paper's mean +/- SEM; "bar" is the paper's mean + 2 SEM.
 
 from __future__ import annotations
 
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import json
 import os
@@ -99,7 +102,7 @@ def parse_overrides(pairs: list) -> dict:
 
 def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
-    task, arch, repeats, n, data_seed, overrides, threads, log_every = job
+    task, arch, repeats, n, data_seed, overrides, threads, log_every = job  # repeats: list of ids
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
 
@@ -113,13 +116,14 @@ def run_ensemble(job: tuple) -> list:
                   f"val return MSE median {np.median(v):.3f}, worst {v.max():.3f}", flush=True)
         return False
 
-    run = train_ensemble_and_evaluate(ds, arch, cfg, members=repeats, split_seed=0,
-                                      split_mode="per_member", progress=False, on_epoch=log)
+    run = train_ensemble_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
+                                      split_mode="per_member", progress=False, on_epoch=log,
+                                      offsets=list(repeats))
     return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
-             **table_metrics(task, run.member_test[r]),
+             **table_metrics(task, run.member_test[m]),
              "seconds": run.train.seconds, "epochs": run.train.epochs_run,
-             "best_epoch": run.train.best_epochs[r], "still_improving": run.train.still_improving[r],
-             "config": cfg.to_dict()} for r in range(repeats)]
+             "best_epoch": run.train.best_epochs[m], "still_improving": run.train.still_improving[m],
+             "config": cfg.to_dict()} for m, r in enumerate(repeats)]
 
 
 def table_metrics(task: str, test: dict) -> dict:
@@ -183,9 +187,49 @@ def print_bar_check(results: list, tasks: tuple, archs: tuple) -> None:
                   f"{over_ret} | {len(over_rew)}/{len(rs)} {over_rew}; still improving {improving}")
 
 
+def report(results: list, tasks: tuple, archs: tuple) -> None:
+    """Print the tables, the bar check and (Lunar Lander) the best half, for `results`."""
+    for group in (TOY, NAV):
+        sel = tuple(t for t in tasks if t in group)
+        if sel:
+            print_table(results, sel, "return_mse", PAPER_RETURN, archs)
+            print_table(results, sel, "reward_mse", PAPER_REWARD, archs)
+            print_bar_check(results, sel, archs)
+    if "lunar_lander" in tasks:
+        print("\nLunar Lander, all repeats (returns / 100; reward MSE x 1e5)", end="")
+        print_table(results, LL, "return_mse", PAPER_RETURN, archs)
+        print_table(results, LL, "reward_mse", PAPER_REWARD, archs)
+        best = best_half(results)
+        print("\nLunar Lander, the best half by reward MSE (the paper's protocol: top 5 of 10): repeats "
+              + ", ".join(f"{r['arch']} {r['repeat']}" for r in best), end="")
+        print_table(best, LL, "return_mse", PAPER_RETURN, archs)
+        print_table(best, LL, "reward_mse", PAPER_REWARD, archs)
+        print_bar_check(results, LL, archs)
+
+
+def merge_runs(paths: list) -> list:
+    """The runs of several --json files as one table (e.g. repeats 1, 3, 8, 9 and 0, 2, 4-7):
+    refused if a (task, architecture, repeat) appears twice or the training configs differ."""
+    results, seen, configs = [], set(), {}
+    for path in paths:
+        for run in json.loads(Path(path).read_text()):
+            key = (run["task"], run["arch"], run["repeat"])
+            if key in seen:
+                raise SystemExit(f"{path}: {key} is in an earlier file too")
+            seen.add(key)
+            config = {k: v for k, v in run["config"].items() if k not in ("seed", "threads")}
+            first = configs.setdefault(key[:2], (path, config))
+            if first[1] != config:
+                raise SystemExit(f"{path}: {key[:2]} was trained with other settings than in {first[0]}")
+            results.append(run)
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=1, help="repeats 0..N-1 (repeat r: weight seed r, split r)")
+    parser.add_argument("--seeds", type=int, nargs="*", default=None,
+                        help="only these repeats (e.g. rerun a table's failing runs exactly); overrides --repeats")
     parser.add_argument("--tables", nargs="*", default=["toy", "nav"], choices=list(TABLES),
                         help="toy, nav (Timer, Moving, Key, Charger), ll (Lunar Lander; not in the default)")
     parser.add_argument("--tasks", nargs="*", default=None, help="subset of tasks")
@@ -200,17 +244,29 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads per job")
     parser.add_argument("--log-every", type=int, default=0, help="print validation MSE every N epochs")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
+    parser.add_argument("--from-json", type=Path, nargs="*", default=None, metavar="FILE",
+                        help="train nothing: print the tables of the runs in these --json files together")
     args = parser.parse_args()
+    if args.from_json:
+        results = merge_runs(args.from_json)
+        order = [t for group in TABLES.values() for t in group]
+        report(results, tuple(t for t in order if any(r["task"] == t for r in results)),
+               tuple(a for a in ARCHS if any(r["arch"] == a for r in results)))
+        ensembles = {(r["task"], r["arch"], r["seconds"]) for r in results}  # one wall time per ensemble
+        print(f"\n# runs from {', '.join(map(str, args.from_json))}; training wall time "
+              f"{sum(sec for _, _, sec in ensembles):.0f} s in {len(ensembles)} ensemble(s)")
+        return
     tasks = tuple(t for table in args.tables for t in TABLES[table])
     if args.tasks:
         tasks = tuple(t for t in tasks if t in args.tasks)
     overrides = parse_overrides(args.set)
     if args.max_epochs is not None:
         overrides["max_epochs"] = args.max_epochs
-    jobs = [(t, a, args.repeats, args.n, args.data_seed, overrides, args.threads, args.log_every)
+    repeats = list(args.seeds) if args.seeds else list(range(args.repeats))
+    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every)
             for t in tasks for a in args.archs]
-    print(f"# {len(jobs)} ensembles of {args.repeats}: tasks {tasks}, archs {args.archs}, repeats "
-          f"(seeds/splits) 0..{args.repeats - 1}, data seed {args.data_seed}, overrides {overrides}, "
+    print(f"# {len(jobs)} ensembles of {len(repeats)}: tasks {tasks}, archs {args.archs}, repeats "
+          f"(seeds/splits) {repeats}, data seed {args.data_seed}, overrides {overrides}, "
           f"{args.jobs} workers x {args.threads} threads", flush=True)
     start = time.perf_counter()
     results = []
@@ -222,22 +278,7 @@ def main() -> None:
                       f"reward {res['reward_mse']:.5f} (best epoch {res['best_epoch']}/{res['epochs']}"
                       f"{', still improving' if res['still_improving'] else ''}; ensemble {res['seconds']:.0f} s)",
                       flush=True)
-    for group in (TOY, NAV):
-        sel = tuple(t for t in tasks if t in group)
-        if sel:
-            print_table(results, sel, "return_mse", PAPER_RETURN, tuple(args.archs))
-            print_table(results, sel, "reward_mse", PAPER_REWARD, tuple(args.archs))
-            print_bar_check(results, sel, tuple(args.archs))
-    if "lunar_lander" in tasks:
-        print("\nLunar Lander, all repeats (returns / 100; reward MSE x 1e5)", end="")
-        print_table(results, LL, "return_mse", PAPER_RETURN, tuple(args.archs))
-        print_table(results, LL, "reward_mse", PAPER_REWARD, tuple(args.archs))
-        best = best_half(results)
-        print("\nLunar Lander, the best half by reward MSE (the paper's protocol: top 5 of 10): repeats "
-              + ", ".join(f"{r['arch']} {r['repeat']}" for r in best), end="")
-        print_table(best, LL, "return_mse", PAPER_RETURN, tuple(args.archs))
-        print_table(best, LL, "reward_mse", PAPER_REWARD, tuple(args.archs))
-        print_bar_check(results, LL, tuple(args.archs))
+    report(results, tasks, tuple(args.archs))
     print(f"\n# wall time {time.perf_counter() - start:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

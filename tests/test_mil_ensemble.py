@@ -144,3 +144,18 @@ def test_wrong_typed_training_setting_is_refused():
     with pytest.raises(ValueError, match="batch_size must be an int"):
         load_train_config("timer", batch_size="many")
     assert load_train_config("timer", lr="1e-3").lr == 1e-3
+
+
+def test_member_offsets_rerun_chosen_repeats_exactly():
+    """offsets=[2] trains what member 2 of a 3-member per-member run trained (seed, split, result):
+    how bench/reproduce_tables.py --seeds reruns a table's failing repeats."""
+    ds = make_toy_dataset("push_switch", 150, seed=2)
+    cfg = load_train_config("push_switch", max_epochs=2, dropout=0.0)
+    full = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
+                                       split_seed=4, progress=False)
+    one = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=1, split_mode="per_member",
+                                      split_seed=4, progress=False, offsets=[2])
+    assert one.seeds == [2] and one.split_seeds == [6]
+    assert one.member_test[0]["return_mse"] == pytest.approx(full.member_test[2]["return_mse"], rel=1e-4)
+    with pytest.raises(ValueError, match="2 member offsets for 3 members"):
+        member_splits(100, 3, 0, "per_member", offsets=[0, 1])

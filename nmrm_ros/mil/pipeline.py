@@ -65,35 +65,41 @@ class EnsembleRunResult:
     checkpoint: Path | None
 
 
-def member_splits(n: int, members: int, split_seed: int, mode: str) -> tuple[list, list]:
+def member_splits(n: int, members: int, split_seed: int, mode: str,
+                  offsets: list[int] | None = None) -> tuple[list, list]:
     """(K (train, val, test) index triples, the split seed of each member).
 
     shared: one 80/10/10 split (split_seed) for all; per_member: member m on split split_seed + m
     (the paper's repeats over splits); bootstrap: one split, each member's training set resampled
-    with replacement from it (seed split_seed + m)."""
+    with replacement from it (seed split_seed + m). `offsets` replaces m by offsets[m] (e.g. to
+    rerun repeats 1, 3 and 8 of a 10-repeat table exactly)."""
     if mode not in SPLIT_MODES:
         raise ValueError(f"unknown split mode {mode!r}; use one of {', '.join(SPLIT_MODES)}")
+    offsets = list(range(members)) if offsets is None else list(offsets)
+    if len(offsets) != members:
+        raise ValueError(f"{len(offsets)} member offsets for {members} members")
     if mode == "per_member":
-        seeds = [split_seed + m for m in range(members)]
+        seeds = [split_seed + m for m in offsets]
         return [split_indices(n, s) for s in seeds], seeds
     train, val, test = split_indices(n, split_seed)
     if mode == "shared":
         return [(train, val, test)] * members, [split_seed] * members
     triples = [(np.sort(np.random.default_rng(split_seed + m).choice(train, len(train))), val, test)
-               for m in range(members)]
+               for m in offsets]
     return triples, [split_seed] * members
 
 
 def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig,
                                 members: int, split_seed: int = 0, split_mode: str = "shared",
                                 out: str | Path | None = None, progress: bool = True,
-                                data_source: str = "", on_epoch=None) -> EnsembleRunResult:
+                                data_source: str = "", on_epoch=None,
+                                offsets: list[int] | None = None) -> EnsembleRunResult:
     """Train `members` models of `architecture` as one ensemble (member m: weights and shuffle
-    seeded cfg.seed + m, split per `split_mode`), evaluate each on its test split (and the
-    ensemble mean on a shared one), pick the serving member (best validation return MSE) and save
-    a checkpoint to `out` if given. on_epoch: see `train_ensemble`."""
-    splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode)
-    seeds = [cfg.seed + m for m in range(members)]
+    seeded cfg.seed + m, split per `split_mode`; offsets[m] instead of m if given), evaluate each
+    on its test split (and the ensemble mean on a shared one), pick the serving member (best
+    validation return MSE) and save a checkpoint to `out` if given. on_epoch: see `train_ensemble`."""
+    splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
+    seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
                           hidden_size=cfg.hidden_size)
     ens = init_ensemble(config, seeds)
