@@ -147,10 +147,10 @@ def test_wrong_typed_training_setting_is_refused():
 
 
 def test_member_offsets_rerun_chosen_repeats_exactly():
-    """offsets=[2] trains what member 2 of a 3-member per-member run trained (seed, split, result):
-    how bench/reproduce_tables.py --seeds reruns a table's failing repeats."""
+    """offsets=[2] trains what member 2 of a 3-member per-member run trained (seed, split, dropout
+    masks, result): how bench/reproduce_tables.py --seeds reruns a table's failing repeats."""
     ds = make_toy_dataset("push_switch", 150, seed=2)
-    cfg = load_train_config("push_switch", max_epochs=2, dropout=0.0)
+    cfg = load_train_config("push_switch", max_epochs=2, dropout=0.1)
     full = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
                                        split_seed=4, progress=False)
     one = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=1, split_mode="per_member",

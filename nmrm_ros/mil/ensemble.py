@@ -19,10 +19,11 @@ is the member whose hidden state the online model publishes (the best on validat
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
-from .models import MILOutput, MILRewardModel, ModelConfig, build_model, dropout_mask
+from .models import MILOutput, MILRewardModel, ModelConfig, build_model, dropout_mask, member_dropout_mask
 
 
 def _key(name: str) -> str:
@@ -53,6 +54,8 @@ class MILEnsemble(nn.Module):
         self._head = [n for n, m in template.head.named_children() if isinstance(m, nn.Linear)]
         self.dropout = float(config.dropout)
         self.leaky = config.output_activation == "leaky_relu"
+        #: per-member dropout streams (`seed_dropout`); None: masks from torch's generator
+        self.dropout_streams: list | None = None
 
     # ----------------------------------------------------------------- members in and out
     @classmethod
@@ -100,6 +103,12 @@ class MILEnsemble(nn.Module):
         self.input_shift[index].copy_(state["input_shift"])
         self.input_scale[index].copy_(state["input_scale"])
 
+    def seed_dropout(self, seeds: list) -> None:
+        """Give member k its own dropout stream, seeded by `seeds[k]` (training does this)."""
+        if len(seeds) != self.members:
+            raise ValueError(f"{self.members} members need {self.members} dropout seeds, got {len(seeds)}")
+        self.dropout_streams = [np.random.SFC64(np.random.SeedSequence([int(s), 0xD80])) for s in seeds]
+
     # ----------------------------------------------------------------- forward
     def _linear(self, z: torch.Tensor, prefix: str, name: str) -> torch.Tensor:
         w = self.params[_key(f"{prefix}.{name}.weight")]  # (K, out, in)
@@ -109,7 +118,10 @@ class MILEnsemble(nn.Module):
     def _activation(self, z: torch.Tensor) -> torch.Tensor:
         z = torch.relu(z)
         if self.training and self.dropout > 0:
-            z = z * dropout_mask(z, self.dropout)
+            if self.dropout_streams is not None:
+                z = z * member_dropout_mask(z, self.dropout, self.dropout_streams, *self._batch_layout)
+            else:
+                z = z * dropout_mask(z, self.dropout)
         return z
 
     def _features(self, x: torch.Tensor) -> torch.Tensor:
@@ -168,6 +180,7 @@ class MILEnsemble(nn.Module):
             lengths = lengths.unsqueeze(0).expand(K, -1)
         _, B, T, d = x.shape
         mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
+        self._batch_layout = (B, lengths.max(dim=1).values.tolist() if B else [0] * K)  # for dropout
         f = self._features(x.reshape(K, B * T, d))
         arch = self.config.architecture
         if arch == "instance_nn":

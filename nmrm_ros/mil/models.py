@@ -102,6 +102,36 @@ def dropout_mask(like: torch.Tensor, p: float) -> torch.Tensor:
     return mask.mul_(1.0 / (1.0 - p))
 
 
+def member_dropout_mask(like: torch.Tensor, p: float, streams: list, bags: int, steps: list) -> torch.Tensor:
+    """`dropout_mask` for an ensemble's (K, B * T, F) activations, member k's from `streams[k]`.
+
+    streams: K numpy bit generators (e.g. `np.random.SFC64`), one per member, each advanced only
+    by its own member's draws; steps: each member's own longest bag T_k <= T in this batch. Member
+    k draws masks for its (B, T_k, F) instances only (the rest is padding, left unmasked), so that
+    its masks do not depend on the other members' bags: a member of a 10-member run trains as it
+    would alone."""
+    K, F = like.shape[0], like.shape[-1]
+    T = like.shape[1] // bags
+    threshold = int(round(p * 65536)) - 32768
+    if all(int(t) == T for t in steps):  # every member's longest bag is the batch's (navigation)
+        n = like[0].numel()
+        words = np.empty((K, (n + 3) // 4), dtype=np.uint64)
+        for k, stream in enumerate(streams):
+            words[k] = stream.random_raw(words.shape[1])
+        uniform16 = torch.from_numpy(words.view(np.int16)[:, :n] if n % 4 else words.view(np.int16))
+        mask = torch.empty(like.shape, dtype=like.dtype)
+        torch.ge(uniform16.reshape(like.shape), threshold, out=mask)
+        return mask.mul_(1.0 / (1.0 - p))
+    mask = torch.ones((K, bags, T, F), dtype=like.dtype)
+    for k, stream in enumerate(streams):
+        t_k = int(steps[k])
+        n = bags * t_k * F
+        words = stream.random_raw((n + 3) // 4)
+        uniform16 = torch.from_numpy(words.view(np.int16)[:n]).view(bags, t_k, F)
+        torch.ge(uniform16, threshold, out=mask[k, :, :t_k])
+    return mask.view(like.shape).mul_(1.0 / (1.0 - p))
+
+
 class FastDropout(nn.Module):
     """Inverted dropout (as nn.Dropout) with the mask from `dropout_mask`."""
 

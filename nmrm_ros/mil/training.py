@@ -219,9 +219,9 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     """Train every member of `ens` in place on `ds`.
 
     splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
-    sizes); seeds: K seeds of the members' shuffles (default cfg.seed + m; dropout draws from
-    torch's generator, seeded with seeds[0]). Each member's normalisation is fitted on its own
-    training split. on_epoch(entry) is called after each epoch with its history entry (plus
+    sizes); seeds: K seeds of the members' shuffles and dropout masks (default cfg.seed + m), so
+    that member m trains exactly as it would alone with seeds[m]. Each member's normalisation is
+    fitted on its own training split. on_epoch(entry) is called after each epoch with its history entry (plus
     "seconds": wall time since the start); returning True stops the run. On return each member
     holds its best-validation weights. label_swap: K fractions of swapped labels, one per member
     (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
@@ -237,6 +237,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     seeds = list(seeds) if seeds is not None else [cfg.seed + m for m in range(K)]
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(seeds[0])
+    ens.seed_dropout(seeds)  # each member's masks from its own seed: a member is its own run
     for m, (tr, _) in enumerate(splits):
         shift, scale = normalisation(ds.subset(np.asarray(tr)), cfg.normalisation)
         with torch.no_grad():
