@@ -79,7 +79,7 @@ def dataset_screen(
         kwargs["pool_size"] = pool_size or 2 * n
     else:
         kwargs["key_fourth_class"] = key_fourth_class
-        bar = tqdm(total=n, desc=f"screening {task}", unit="traj", leave=False)
+        bar = tqdm(total=n, desc=f"screening {task}", unit="traj", leave=False, disable=None)
         kwargs["progress"] = lambda kept, examined: (bar.update(kept - bar.n),
                                                      bar.set_postfix(draws=examined))
     ds = generate_screened(task, n, seed=seed, **kwargs)

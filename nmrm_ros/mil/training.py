@@ -322,4 +322,5 @@ def _progress(total: int, enabled: bool):
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="epochs", unit="ep", leave=False)
+    # disable=None: no bar when stderr is not a terminal (a log would get one \r-joined line)
+    return tqdm(total=total, desc="epochs", unit="ep", leave=False, disable=None)
