@@ -119,7 +119,7 @@ class MILEnsemble(nn.Module):
         z = torch.relu(z)
         if self.training and self.dropout > 0:
             if self.dropout_streams is not None:
-                z = z * member_dropout_mask(z, self.dropout, self.dropout_streams, *self._batch_layout)
+                z = z * member_dropout_mask(z, self.dropout, self.dropout_streams, *self._dropout_layout)
             else:
                 z = z * dropout_mask(z, self.dropout)
         return z
@@ -180,7 +180,9 @@ class MILEnsemble(nn.Module):
             lengths = lengths.unsqueeze(0).expand(K, -1)
         _, B, T, d = x.shape
         mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
-        self._batch_layout = (B, lengths.max(dim=1).values.tolist() if B else [0] * K)  # for dropout
+        if self.training and self.dropout > 0 and self.dropout_streams is not None:
+            # each member's own longest bag: its dropout masks cover only its own instances
+            self._dropout_layout = (B, lengths.max(dim=1).values.tolist() if B else [0] * K)
         f = self._features(x.reshape(K, B * T, d))
         arch = self.config.architecture
         if arch == "instance_nn":

@@ -113,21 +113,12 @@ def member_dropout_mask(like: torch.Tensor, p: float, streams: list, bags: int, 
     K, F = like.shape[0], like.shape[-1]
     T = like.shape[1] // bags
     threshold = int(round(p * 65536)) - 32768
-    if all(int(t) == T for t in steps):  # every member's longest bag is the batch's (navigation)
-        n = like[0].numel()
-        words = np.empty((K, (n + 3) // 4), dtype=np.uint64)
-        for k, stream in enumerate(streams):
-            words[k] = stream.random_raw(words.shape[1])
-        uniform16 = torch.from_numpy(words.view(np.int16)[:, :n] if n % 4 else words.view(np.int16))
-        mask = torch.empty(like.shape, dtype=like.dtype)
-        torch.ge(uniform16.reshape(like.shape), threshold, out=mask)
-        return mask.mul_(1.0 / (1.0 - p))
-    mask = torch.ones((K, bags, T, F), dtype=like.dtype)
+    padded = any(int(t) < T for t in steps)
+    mask = (torch.ones if padded else torch.empty)((K, bags, T, F), dtype=like.dtype)
     for k, stream in enumerate(streams):
         t_k = int(steps[k])
         n = bags * t_k * F
-        words = stream.random_raw((n + 3) // 4)
-        uniform16 = torch.from_numpy(words.view(np.int16)[:n]).view(bags, t_k, F)
+        uniform16 = torch.from_numpy(stream.random_raw((n + 3) // 4).view(np.int16)[:n]).view(bags, t_k, F)
         torch.ge(uniform16, threshold, out=mask[k, :, :t_k])
     return mask.view(like.shape).mul_(1.0 / (1.0 - p))
 

@@ -221,8 +221,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
     sizes); seeds: K seeds of the members' shuffles and dropout masks (default cfg.seed + m), so
     that member m trains exactly as it would alone with seeds[m]. Each member's normalisation is
-    fitted on its own training split. on_epoch(entry) is called after each epoch with its history entry (plus
-    "seconds": wall time since the start); returning True stops the run. On return each member
+    fitted on its own training split. on_epoch(entry) is called after each epoch with its history
+    entry (plus "seconds": wall time since the start); returning True stops the run. On return each member
     holds its best-validation weights. label_swap: K fractions of swapped labels, one per member
     (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
     """
