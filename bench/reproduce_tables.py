@@ -102,7 +102,7 @@ def parse_overrides(pairs: list) -> dict:
 
 def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
-    task, arch, repeats, n, data_seed, overrides, threads, log_every = job  # repeats: list of ids
+    task, arch, repeats, n, data_seed, overrides, threads, log_every, save = job  # repeats: list of ids
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
 
@@ -118,7 +118,8 @@ def run_ensemble(job: tuple) -> list:
 
     run = train_ensemble_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
                                       split_mode="per_member", progress=False, on_epoch=log,
-                                      offsets=list(repeats))
+                                      offsets=list(repeats),
+                                      out=None if save is None else Path(save) / f"{task}_{arch}")
     return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
              **table_metrics(task, run.member_test[m]),
              "seconds": run.train.seconds, "epochs": run.train.epochs_run,
@@ -130,8 +131,10 @@ def table_metrics(task: str, test: dict) -> dict:
     """The test MSEs in the paper's table units: label units, except Lunar Lander (returns / 100,
     reward MSE in units of 1e-5); label-unit values kept beside."""
     if task not in LL:
-        return {"return_mse": test["return_mse"], "reward_mse": test["reward_mse"]}
+        return {"return_mse": test["return_mse"], "reward_mse": test["reward_mse"],
+                "reward_mse_time_profile": test["reward_mse_time_profile"]}
     return {"return_mse": test["return_mse_scaled"], "reward_mse": test["reward_mse_scaled"] / LL_REWARD_UNIT,
+            "reward_mse_time_profile": test["reward_mse_time_profile_scaled"] / LL_REWARD_UNIT,
             "return_mse_label_units": test["return_mse"], "reward_mse_label_units": test["reward_mse"]}
 
 
@@ -244,6 +247,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads per job")
     parser.add_argument("--log-every", type=int, default=0, help="print validation MSE every N epochs")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
+    parser.add_argument("--save", type=Path, default=None, metavar="DIR",
+                        help="also save each ensemble's checkpoint as DIR/<task>_<arch>.{pt,json}")
     parser.add_argument("--from-json", type=Path, nargs="*", default=None, metavar="FILE",
                         help="train nothing: print the tables of the runs in these --json files together")
     args = parser.parse_args()
@@ -263,7 +268,7 @@ def main() -> None:
     if args.max_epochs is not None:
         overrides["max_epochs"] = args.max_epochs
     repeats = list(args.seeds) if args.seeds else list(range(args.repeats))
-    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every)
+    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every, args.save)
             for t in tasks for a in args.archs]
     print(f"# {len(jobs)} ensembles of {len(repeats)}: tasks {tasks}, archs {args.archs}, repeats "
           f"(seeds/splits) {repeats}, data seed {args.data_seed}, overrides {overrides}, "
@@ -275,7 +280,7 @@ def main() -> None:
             results.extend(runs)
             for res in runs:
                 print(f"  {res['task']:13s} {res['arch']:15s} seed {res['repeat']}: return {res['return_mse']:.4f} "
-                      f"reward {res['reward_mse']:.5f} (best epoch {res['best_epoch']}/{res['epochs']}"
+                      f"reward {res['reward_mse']:.5f} [time profile {res['reward_mse_time_profile']:.5f}] (best epoch {res['best_epoch']}/{res['epochs']}"
                       f"{', still improving' if res['still_improving'] else ''}; ensemble {res['seconds']:.0f} s)",
                       flush=True)
     report(results, tasks, tuple(args.archs))

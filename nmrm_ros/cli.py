@@ -302,6 +302,8 @@ def train(
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
     label_swap: float = typer.Option(None, help="label noise: swap this fraction of the training and "
                                      "validation labels between trajectories (paper Sec. 5.2)"),
+    reward_l1: float = typer.Option(None, help="override the weight of the L1 sparsity prior on "
+                                    "per-step rewards (config/mil_training.yaml; 0: off)"),
 ) -> None:
     """Train a MIL reward model or an ensemble (early stopping on validation return MSE) and
     evaluate it on the test split."""
@@ -315,9 +317,11 @@ def train(
     else:
         ds, source = _load_or_generate(data, task, n, data_seed)
     cfg = _bad_input(load_train_config, ds.task, config, max_epochs=epochs, lr=lr,
-                     batch_size=batch_size, seed=seed, label_swap=label_swap)
+                     batch_size=batch_size, seed=seed, label_swap=label_swap, reward_l1=reward_l1)
     if not 0.0 <= cfg.label_swap <= 1.0:
         raise typer.BadParameter(f"--label-swap must be in [0, 1], got {cfg.label_swap}")
+    if cfg.reward_l1 < 0:
+        raise typer.BadParameter(f"--reward-l1 must be at least 0, got {cfg.reward_l1}")
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
@@ -402,7 +406,8 @@ def evaluate(
     m = evaluate_model(model, ds)
     what = f"{meta['ensemble']['members']}-member ensemble of " if meta.get("ensemble") else ""
     typer.echo(f"{what}{model.config.architecture} on {ds.task} ({split}, {m['bags']} bags): "
-               f"return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f}")
+               f"return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f} "
+               f"(of it the mean error per step index: {m['reward_mse_time_profile']:.5f})")
 
 
 @app.command()

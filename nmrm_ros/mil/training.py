@@ -15,6 +15,14 @@ decay to `lr * min_lr_ratio` at `max_epochs`. `grad_clip` > 0 clips each member'
 `label_swap` = p > 0 trains on noisy labels (paper Sec. 5.2): a fraction p of each member's
 training labels, and of its validation labels, are swapped between trajectories
 (`nmrm_ros.datasets.label_noise`; seeded by the member's seed); the test split stays clean.
+
+`reward_l1` = λ > 0 adds λ · mean over bags of Σ_t |r'_t| (in units of return_scale) to each
+member's loss: a sparsity prior that chooses between decompositions the returns cannot tell
+apart. When every bag has the same length, adding any zero-sum function of time f(t) to the
+rewards (the LSTM can count steps) leaves every return unchanged, so the return loss alone does
+not fix the per-step rewards; the L1 term's optimum along those directions is f(t) = the median
+of -r_t, i.e. f = 0 wherever most bags get no reward at step t. Its pull on the returns is small:
+at the optimum a bag's return is off by about λ / 2.
 """
 
 from __future__ import annotations
@@ -58,6 +66,7 @@ class TrainConfig:
     lstm_forget_bias: float = 0.0  # initial forget-gate bias (b_ih + b_hh) of every LSTM
     hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
+    reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -213,6 +222,19 @@ def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
     return norms
 
 
+def member_losses(out, returns: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+    """Each member's training loss (K,) on one mini-batch: the mean over bags of the squared return
+    error / return_scale, plus `reward_l1` times the mean over bags of sum_t |r'_t| / return_scale.
+
+    out: the ensemble's output (returns (K, B), rewards (K, B, T), zero beyond each length);
+    returns: the labels (K, B)."""
+    scale = float(cfg.return_scale)
+    loss = torch.mean(((out.returns - returns) / scale) ** 2, dim=-1)
+    if cfg.reward_l1 > 0:  # sparsity prior on the per-step rewards (see the module docstring)
+        loss = loss + cfg.reward_l1 * out.rewards.abs().sum(-1).mean(-1) / scale
+    return loss
+
+
 def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
                    seeds: list | None = None, progress: bool = True,
                    on_epoch=None, label_swap: list | None = None) -> EnsembleTrainResult:
@@ -264,7 +286,6 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
                                   for m in range(K)])
     optimiser = torch.optim.Adam(ens.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
-    scale = float(cfg.return_scale)
     steps_per_epoch = math.ceil(n_train / cfg.batch_size)
     best_mse = np.full(K, np.inf)
     best_epoch = np.zeros(K, dtype=int)
@@ -284,7 +305,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
                 group["lr"] = cfg.lr_at(epoch - 1 + step / steps_per_epoch)
             x, lengths, returns = bags.batch(order[:, i:i + cfg.batch_size],
                                              label_order[:, i:i + cfg.batch_size])
-            member_loss = torch.mean(((ens(x, lengths).returns - returns) / scale) ** 2, dim=1)
+            member_loss = member_losses(ens(x, lengths), returns, cfg)
             optimiser.zero_grad()
             member_loss.sum().backward()
             if cfg.grad_clip > 0:

@@ -1,0 +1,95 @@
+"""The reward-sparsity prior (`reward_l1`) and the time-profile part of the reward MSE.
+
+With bags of one length, rewards r_t + c * f(t) with sum_t f(t) = 0 give every bag the return of
+r_t: the return loss cannot choose c. These tests check that the L1 term does (its minimum is at
+c = 0 where most steps have no reward), and that `evaluate` reports such an error as its time
+profile.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.mil import evaluate, load_train_config
+from nmrm_ros.mil.models import MILOutput
+from nmrm_ros.mil.training import member_losses
+
+
+@pytest.fixture(scope="module")
+def key_bags():
+    ds = generate_screened("key", 200, seed=0)
+    assert set(ds.lengths.tolist()) == {100}  # the degeneracy needs equal lengths
+    return ds
+
+
+def _zero_sum_profile(T: int) -> torch.Tensor:
+    f = torch.sin(torch.arange(T, dtype=torch.float64) * 2 * np.pi / T * 3)
+    return f - f.mean()
+
+
+class PlantedRewards:
+    """Not a learnt model: the oracle's rewards plus c * f(t) (+ noise), to check the metric."""
+
+    def __init__(self, ds, c: float, noise: float = 0.0) -> None:
+        self.rewards = torch.as_tensor(ds.rewards, dtype=torch.float64)
+        self.c, self.noise = c, noise
+        self.return_scale = torch.ones(())
+
+    def eval(self):
+        return self
+
+    def __call__(self, x, lengths):
+        T = x.shape[1]
+        assert x.shape[0] == len(self.rewards)  # one batch of every bag (batch_size >= n)
+        r = self.rewards[:, :T] + self.c * _zero_sum_profile(T)
+        if self.noise:
+            r = r + self.noise * torch.as_tensor(np.random.default_rng(0).standard_normal(r.shape))
+        return MILOutput(r.sum(1).float(), r.float(), x.new_zeros(x.shape[0], T, 0))
+
+
+def test_time_profile_is_the_planted_zero_sum_error(key_bags):
+    m = evaluate(PlantedRewards(key_bags, c=0.4), key_bags, batch_size=1000)
+    planted = float(((0.4 * _zero_sum_profile(100)) ** 2).mean())
+    assert m["return_mse"] < 1e-8  # invisible in the returns
+    assert m["reward_mse"] == pytest.approx(planted, rel=1e-4)
+    assert m["reward_mse_time_profile"] == pytest.approx(planted, rel=1e-4)
+    noisy = evaluate(PlantedRewards(key_bags, c=0.0, noise=0.3), key_bags, batch_size=1000)
+    assert noisy["reward_mse"] == pytest.approx(0.09, rel=0.05)
+    assert noisy["reward_mse_time_profile"] < noisy["reward_mse"] / 50  # noise is not a time profile
+
+
+def test_member_losses_formula():
+    cfg = load_train_config("timer", reward_l1=0.05)
+    assert cfg.reward_l1 == 0.05
+    rewards = torch.tensor([[[1.0, -2.0, 0.0], [0.5, 0.5, 0.0]]])  # (K=1, B=2, T=3)
+    out = MILOutput(rewards.sum(-1), rewards, torch.zeros(1, 2, 3, 0))
+    labels = torch.tensor([[0.0, 2.0]])
+    expected = ((-1.0 - 0.0) ** 2 + (1.0 - 2.0) ** 2) / 2 + 0.05 * (3.0 + 1.0) / 2
+    assert float(member_losses(out, labels, cfg)[0]) == pytest.approx(expected)
+    off = load_train_config("timer", reward_l1=0.0)
+    assert float(member_losses(out, labels, off)[0]) == pytest.approx(1.0)
+
+
+def test_l1_prior_picks_the_true_decomposition_among_equal_returns(key_bags):
+    """Along r + c f(t) the return loss is flat; the L1 term is lowest at c = 0 (the oracle's),
+    since at every step most Key bags get no reward."""
+    rewards = torch.as_tensor(key_bags.rewards, dtype=torch.float32)[None]
+    labels = torch.as_tensor(key_bags.returns, dtype=torch.float32)[None]
+    assert float(((rewards[0] != 0).double().mean(0)).max()) < 0.5
+    f = _zero_sum_profile(100).float()
+    cfg = load_train_config("key", reward_l1=0.05)
+    plain = load_train_config("key", reward_l1=0.0)
+    cs = [-0.5, -0.2, -0.05, 0.0, 0.05, 0.2, 0.5]
+    with_prior, without = [], []
+    for c in cs:
+        r = rewards + c * f
+        out = MILOutput(r.sum(-1), r, torch.zeros(1, *r.shape[1:], 0))
+        with_prior.append(float(member_losses(out, labels, cfg)[0]))
+        without.append(float(member_losses(out, labels, plain)[0]))
+    assert max(without) < 1e-6  # the returns cannot tell the decompositions apart
+    assert int(np.argmin(with_prior)) == cs.index(0.0)
+    assert all(a < b for a, b in zip(with_prior[3:], with_prior[4:]))  # grows away from c = 0
+    assert all(a > b for a, b in zip(with_prior[:3], with_prior[1:4]))
