@@ -102,12 +102,14 @@ def parse_overrides(pairs: list) -> dict:
 
 def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
-    task, arch, repeats, n, data_seed, overrides, threads, log_every, save = job  # repeats: list of ids
+    task, arch, repeats, n, data_seed, overrides, threads, log_every, save, members = job  # repeats: ids
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
 
     ds = load_dataset(task, n, data_seed)
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
+    if members > 1:
+        return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed)
 
     def log(entry: dict) -> bool:
         if log_every and entry["epoch"] % log_every == 0:
@@ -125,6 +127,56 @@ def run_ensemble(job: tuple) -> list:
              "seconds": run.train.seconds, "epochs": run.train.epochs_run,
              "best_epoch": run.train.best_epochs[m], "still_improving": run.train.still_improving[m],
              "config": cfg.to_dict()} for m, r in enumerate(repeats)]
+
+
+def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed) -> list:
+    """Repeat r is an ensemble of `members` models on split r (member j: weight seed r + 1000 j,
+    so member 0 is the single-model run of repeat r), scored on its mean prediction; all the
+    repeats' members train in one pass. One dict per repeat: the ensemble's metrics, and member
+    0's as `single_*`."""
+    from nmrm_ros.mil import evaluate, model_config
+    from nmrm_ros.mil.data import split_indices
+    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
+    from nmrm_ros.mil.training import train_ensemble
+
+    layout = [(r, j) for r in repeats for j in range(members)]
+    seeds = [r + 1000 * j for r, j in layout]
+    splits = {r: split_indices(len(ds), r) for r in repeats}
+    config = model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout, hidden_size=cfg.hidden_size)
+    ens = init_ensemble(config, seeds)
+
+    def log(entry: dict) -> bool:
+        if log_every and entry["epoch"] % log_every == 0:
+            v = np.asarray(entry["val_return_mse"])
+            print(f"    [{task} {arch} x{members}] epoch {entry['epoch']} ({entry['seconds']:.0f} s, lr "
+                  f"{entry['lr']:.2g}): val return MSE median {np.median(v):.3f}, worst {v.max():.3f}", flush=True)
+        return False
+
+    result = train_ensemble(ens, ds, [splits[r][:2] for r, _ in layout], cfg, seeds=seeds,
+                            progress=False, on_epoch=log)
+    if save is not None:
+        from nmrm_ros.mil.checkpoint import save_checkpoint
+
+        save_checkpoint(ens, Path(save) / f"{task}_{arch}_x{members}", task=ds.task, seed=seeds[0],
+                        split_seed=repeats[0], train_config=cfg.to_dict(),
+                        data={"source": f"screened:{task}:n={len(ds)}:seed={data_seed}", "n": len(ds), "meta": ds.meta},
+                        ensemble={"members": len(seeds), "seeds": seeds,
+                                  "split_seeds": [r for r, _ in layout], "split_mode": "per_member",
+                                  "serving_member": 0})
+    runs = []
+    for r in repeats:
+        idx = [i for i, (rr, _) in enumerate(layout) if rr == r]
+        test = ds.subset(splits[r][2])
+        mean_metrics = table_metrics(task, evaluate(MILEnsemble.from_members([ens.member(i) for i in idx]), test))
+        single = table_metrics(task, evaluate(ens.member(idx[0]), test))
+        runs.append({"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
+                     "members": members, "member_seeds": [seeds[i] for i in idx], **mean_metrics,
+                     **{f"single_{k}": v for k, v in single.items()},
+                     "seconds": result.seconds, "epochs": result.epochs_run,
+                     "best_epoch": max(result.best_epochs[i] for i in idx),
+                     "still_improving": any(result.still_improving[i] for i in idx),
+                     "config": cfg.to_dict()})
+    return runs
 
 
 def table_metrics(task: str, test: dict) -> dict:
@@ -247,6 +299,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads per job")
     parser.add_argument("--log-every", type=int, default=0, help="print validation MSE every N epochs")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
+    parser.add_argument("--members", type=int, default=1,
+                        help="each repeat an ensemble of this many models on its split, scored on their "
+                             "mean (as `nmrm train --ensemble M`); member 0 is also reported alone")
     parser.add_argument("--save", type=Path, default=None, metavar="DIR",
                         help="also save each ensemble's checkpoint as DIR/<task>_<arch>.{pt,json}")
     parser.add_argument("--from-json", type=Path, nargs="*", default=None, metavar="FILE",
@@ -268,7 +323,7 @@ def main() -> None:
     if args.max_epochs is not None:
         overrides["max_epochs"] = args.max_epochs
     repeats = list(args.seeds) if args.seeds else list(range(args.repeats))
-    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every, args.save)
+    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every, args.save, args.members)
             for t in tasks for a in args.archs]
     print(f"# {len(jobs)} ensembles of {len(repeats)}: tasks {tasks}, archs {args.archs}, repeats "
           f"(seeds/splits) {repeats}, data seed {args.data_seed}, overrides {overrides}, "
@@ -279,11 +334,27 @@ def main() -> None:
         for runs in pool.map(run_ensemble, jobs):
             results.extend(runs)
             for res in runs:
+                if res.get("members", 1) > 1:
+                    print(f"  {res['task']:13s} {res['arch']:15s} repeat {res['repeat']}, mean of {res['members']}: "
+                          f"return {res['return_mse']:.4f} reward {res['reward_mse']:.5f} [time profile "
+                          f"{res['reward_mse_time_profile']:.5f}]; member 0 alone: return "
+                          f"{res['single_return_mse']:.4f} reward {res['single_reward_mse']:.5f} (best epochs up to "
+                          f"{res['best_epoch']}/{res['epochs']}{', still improving' if res['still_improving'] else ''}; "
+                          f"ensemble {res['seconds']:.0f} s)", flush=True)
+                    continue
                 print(f"  {res['task']:13s} {res['arch']:15s} seed {res['repeat']}: return {res['return_mse']:.4f} "
                       f"reward {res['reward_mse']:.5f} [time profile {res['reward_mse_time_profile']:.5f}] (best epoch {res['best_epoch']}/{res['epochs']}"
                       f"{', still improving' if res['still_improving'] else ''}; ensemble {res['seconds']:.0f} s)",
                       flush=True)
-    report(results, tasks, tuple(args.archs))
+    if args.members > 1:
+        print(f"\n# each repeat: the mean of its {args.members} members:")
+        report(results, tasks, tuple(args.archs))
+        singles = [dict(r, **{k[len('single_'):]: v for k, v in r.items() if k.startswith("single_")})
+                   for r in results]
+        print("\n# member 0 of each repeat alone (the single-model run of that repeat):", end="")
+        report(singles, tasks, tuple(args.archs))
+    else:
+        report(results, tasks, tuple(args.archs))
     print(f"\n# wall time {time.perf_counter() - start:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

@@ -298,7 +298,8 @@ def train(
     lr: float = typer.Option(None, help="override the learning rate"),
     batch_size: int = typer.Option(None, help="override the batch size"),
     config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)"),
-    ensemble: int = typer.Option(1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1)"),
+    ensemble: int = typer.Option(None, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1; "
+                                 "served as their mean reward); default: the task's `members` in the config"),
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
     label_swap: float = typer.Option(None, help="label noise: swap this fraction of the training and "
                                      "validation labels between trajectories (paper Sec. 5.2)"),
@@ -325,6 +326,7 @@ def train(
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
+    ensemble = cfg.members if ensemble is None else ensemble
     if ensemble > 1:
         if split_mode not in SPLIT_MODES:
             raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}")

@@ -67,6 +67,7 @@ class TrainConfig:
     hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
     reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
+    members: int = 1  # models `nmrm train` trains as one ensemble (shared split) unless --ensemble is given
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
