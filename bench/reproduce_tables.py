@@ -108,6 +108,7 @@ def run_ensemble(job: tuple) -> list:
 
     ds = load_dataset(task, n, data_seed)
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
+    members = cfg.members if members is None else members
     if members > 1:
         return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed)
 
@@ -262,6 +263,20 @@ def report(results: list, tasks: tuple, archs: tuple) -> None:
         print_bar_check(results, LL, archs)
 
 
+def report_all(results: list, tasks: tuple, archs: tuple) -> None:
+    """`report`; where repeats were ensembles (--members), first of their means, then of each
+    repeat's member 0 alone."""
+    if not any(r.get("members", 1) > 1 for r in results):
+        report(results, tasks, archs)
+        return
+    print("\n# each repeat: the mean of its members (--members):", end="")
+    report(results, tasks, archs)
+    singles = [dict(r, **{k[len("single_"):]: v for k, v in r.items() if k.startswith("single_")})
+               for r in results]
+    print("\n# member 0 of each repeat alone (the one-model run of that repeat):", end="")
+    report(singles, tasks, archs)
+
+
 def merge_runs(paths: list) -> list:
     """The runs of several --json files as one table (e.g. repeats 1, 3, 8, 9 and 0, 2, 4-7):
     refused if a (task, architecture, repeat) appears twice or the training configs differ."""
@@ -299,9 +314,10 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads per job")
     parser.add_argument("--log-every", type=int, default=0, help="print validation MSE every N epochs")
     parser.add_argument("--json", type=Path, default=None, help="also write all runs here")
-    parser.add_argument("--members", type=int, default=1,
+    parser.add_argument("--members", type=int, default=None,
                         help="each repeat an ensemble of this many models on its split, scored on their "
-                             "mean (as `nmrm train --ensemble M`); member 0 is also reported alone")
+                             "mean (as `nmrm train --ensemble M`); member 0 is also reported alone "
+                             "(default: the task's `members` in config/mil_training.yaml: Timer 3, else 1)")
     parser.add_argument("--save", type=Path, default=None, metavar="DIR",
                         help="also save each ensemble's checkpoint as DIR/<task>_<arch>.{pt,json}")
     parser.add_argument("--from-json", type=Path, nargs="*", default=None, metavar="FILE",
@@ -310,8 +326,8 @@ def main() -> None:
     if args.from_json:
         results = merge_runs(args.from_json)
         order = [t for group in TABLES.values() for t in group]
-        report(results, tuple(t for t in order if any(r["task"] == t for r in results)),
-               tuple(a for a in ARCHS if any(r["arch"] == a for r in results)))
+        report_all(results, tuple(t for t in order if any(r["task"] == t for r in results)),
+                   tuple(a for a in ARCHS if any(r["arch"] == a for r in results)))
         ensembles = {(r["task"], r["arch"], r["seconds"]) for r in results}  # one wall time per ensemble
         print(f"\n# runs from {', '.join(map(str, args.from_json))}; training wall time "
               f"{sum(sec for _, _, sec in ensembles):.0f} s in {len(ensembles)} ensemble(s)")
@@ -346,15 +362,7 @@ def main() -> None:
                       f"reward {res['reward_mse']:.5f} [time profile {res['reward_mse_time_profile']:.5f}] (best epoch {res['best_epoch']}/{res['epochs']}"
                       f"{', still improving' if res['still_improving'] else ''}; ensemble {res['seconds']:.0f} s)",
                       flush=True)
-    if args.members > 1:
-        print(f"\n# each repeat: the mean of its {args.members} members:")
-        report(results, tasks, tuple(args.archs))
-        singles = [dict(r, **{k[len('single_'):]: v for k, v in r.items() if k.startswith("single_")})
-                   for r in results]
-        print("\n# member 0 of each repeat alone (the single-model run of that repeat):", end="")
-        report(singles, tasks, tuple(args.archs))
-    else:
-        report(results, tasks, tuple(args.archs))
+    report_all(results, tasks, tuple(args.archs))
     print(f"\n# wall time {time.perf_counter() - start:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
