@@ -100,6 +100,18 @@ def parse_overrides(pairs: list) -> dict:
     return out
 
 
+def epoch_logger(label: str, every: int):
+    """on_epoch callback printing the members' validation return MSE every `every` epochs."""
+    def log(entry: dict) -> bool:
+        if every and entry["epoch"] % every == 0:
+            v = np.asarray(entry["val_return_mse"])
+            print(f"    [{label}] epoch {entry['epoch']} ({entry['seconds']:.0f} s, lr {entry['lr']:.2g}): "
+                  f"val return MSE median {np.median(v):.3f}, worst {v.max():.3f}", flush=True)
+        return False
+
+    return log
+
+
 def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
     task, arch, repeats, n, data_seed, overrides, threads, log_every, save, members = job  # repeats: ids
@@ -112,15 +124,9 @@ def run_ensemble(job: tuple) -> list:
     if members > 1:
         return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed)
 
-    def log(entry: dict) -> bool:
-        if log_every and entry["epoch"] % log_every == 0:
-            v = np.asarray(entry["val_return_mse"])
-            print(f"    [{task} {arch}] epoch {entry['epoch']} ({entry['seconds']:.0f} s, lr {entry['lr']:.2g}): "
-                  f"val return MSE median {np.median(v):.3f}, worst {v.max():.3f}", flush=True)
-        return False
-
     run = train_ensemble_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
-                                      split_mode="per_member", progress=False, on_epoch=log,
+                                      split_mode="per_member", progress=False,
+                                      on_epoch=epoch_logger(f"{task} {arch}", log_every),
                                       offsets=list(repeats),
                                       out=None if save is None else Path(save) / f"{task}_{arch}")
     return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
@@ -146,15 +152,8 @@ def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save,
     config = model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout, hidden_size=cfg.hidden_size)
     ens = init_ensemble(config, seeds)
 
-    def log(entry: dict) -> bool:
-        if log_every and entry["epoch"] % log_every == 0:
-            v = np.asarray(entry["val_return_mse"])
-            print(f"    [{task} {arch} x{members}] epoch {entry['epoch']} ({entry['seconds']:.0f} s, lr "
-                  f"{entry['lr']:.2g}): val return MSE median {np.median(v):.3f}, worst {v.max():.3f}", flush=True)
-        return False
-
     result = train_ensemble(ens, ds, [splits[r][:2] for r, _ in layout], cfg, seeds=seeds,
-                            progress=False, on_epoch=log)
+                            progress=False, on_epoch=epoch_logger(f"{task} {arch} x{members}", log_every))
     if save is not None:
         from nmrm_ros.mil.checkpoint import save_checkpoint
 

@@ -34,35 +34,33 @@ from reproduce_tables import load_dataset
 
 
 @torch.no_grad()
-def mean_error_by_step(model, ds) -> np.ndarray:
-    """(T,) mean over the bags of (predicted r'_t - oracle r_t), per step index t."""
+def step_errors(model, ds) -> tuple[np.ndarray, np.ndarray]:
+    """(err, real): (n, T) predicted r'_t - oracle r_t of every bag (0 beyond its length), and
+    (n, T) whether step t is a real step of bag i."""
     from nmrm_ros.mil.data import BagTensors
 
     bags = BagTensors(ds)
     x, lengths, _ = bags.batch(torch.arange(len(bags)))
-    out = model(x, lengths)
-    mask = (torch.arange(x.shape[1])[None, :] < lengths[:, None]).double()
-    err = (out.rewards.double() - bags.rewards[:, : x.shape[1]].double()) * mask
-    return (err.sum(0) / mask.sum(0).clamp(min=1)).numpy()
-
-
-@torch.no_grad()
-def grouped_errors(model, ds) -> dict:
-    """{group: (mean error, MSE)} over the steps of four groups: oracle reward non-zero / zero,
-    step t <= T / 2 or later (T: the longest bag); and "deferred": (correlation, slope, std of
-    the first) between each bag's summed error in its first half and in its second half."""
-    from nmrm_ros.mil.data import BagTensors
-
-    bags = BagTensors(ds)
-    x, lengths, _ = bags.batch(torch.arange(len(bags)))
-    pred = model(x, lengths).rewards.double().numpy()
-    true = ds.rewards[:, : x.shape[1]]
     real = np.arange(x.shape[1])[None, :] < ds.lengths[:, None]
-    first = np.broadcast_to(np.arange(x.shape[1])[None, :] <= x.shape[1] // 2, real.shape)
-    err = pred - true
+    err = (model(x, lengths).rewards.double().numpy() - ds.rewards[:, : x.shape[1]]) * real
+    return err, real
+
+
+def mean_error_by_step(err: np.ndarray, real: np.ndarray) -> np.ndarray:
+    """(T,) mean over the bags of the error, per step index t."""
+    return err.sum(0) / np.maximum(real.sum(0), 1)
+
+
+def grouped_errors(err: np.ndarray, real: np.ndarray, true: np.ndarray) -> dict:
+    """{group: (mean error, MSE)} over the steps of four groups: oracle reward `true` (n, T)
+    non-zero / zero, step t <= T / 2 or later (T: the longest bag); and "deferred": (correlation,
+    slope, std of the first) between each bag's summed error in its first half and in its second."""
+    T = err.shape[1]
+    true = true[:, :T]
+    first = np.broadcast_to(np.arange(T)[None, :] <= T // 2, real.shape)
     # deferred credit: a bag's error in its first half paid back in its second (slope ~ -1)
-    e1 = np.where(real & first, err, 0.0).sum(1)
-    e2 = np.where(real & ~first, err, 0.0).sum(1)
+    e1 = np.where(first, err, 0.0).sum(1)
+    e2 = np.where(~first, err, 0.0).sum(1)
     slope = float(np.polyfit(e1, e2, 1)[0]) if e1.std() > 0 else 0.0
     groups = {"deferred": (float(np.corrcoef(e1, e2)[0, 1]) if e1.std() > 0 and e2.std() > 0 else 0.0,
                            slope, float(e1.std()))}
@@ -75,7 +73,7 @@ def grouped_errors(model, ds) -> dict:
 
 def members(path: Path):
     """(label, model, test dataset) per member of the checkpoint at `path`."""
-    from nmrm_ros.mil import evaluate, load_checkpoint  # noqa: F401
+    from nmrm_ros.mil import load_checkpoint
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.ensemble import MILEnsemble
 
@@ -112,10 +110,11 @@ def main() -> None:
               "reward 1st half, 2nd half; no reward 1st half, 2nd half | deferred credit")
         for label, model, test in members(path):
             m = evaluate(model, test)
-            profile = mean_error_by_step(model, test)
+            err, real = step_errors(model, test)
+            profile = mean_error_by_step(err, real)
             share = m["reward_mse_time_profile"] / max(m["reward_mse"], 1e-12)
             at = " ".join(f"{profile[t]:+.3f}" for t in (10, 30, 50, 70, 90) if t < len(profile))
-            grouped = grouped_errors(model, test)
+            grouped = grouped_errors(err, real, test.rewards)
             corr, slope, spread = grouped.pop("deferred")
             groups = "  ".join(f"{e:+.3f}/{q:.3f}" for e, q in grouped.values())
             groups += f" | deferred: corr {corr:+.2f}, slope {slope:+.2f}, 1st-half error sum std {spread:.2f}"
