@@ -114,7 +114,7 @@ def epoch_logger(label: str, every: int):
 
 def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
-    task, arch, repeats, n, data_seed, overrides, threads, log_every, save, members = job  # repeats: ids
+    task, arch, repeats, n, data_seed, overrides, threads, log_every, save, members, member0_from = job
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
 
@@ -122,7 +122,8 @@ def run_ensemble(job: tuple) -> list:
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
     members = cfg.members if members is None else members
     if members > 1:
-        return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed)
+        return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed,
+                                    member0_from)
 
     run = train_ensemble_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
                                       split_mode="per_member", progress=False,
@@ -136,17 +137,50 @@ def run_ensemble(job: tuple) -> list:
              "config": cfg.to_dict()} for m, r in enumerate(repeats)]
 
 
-def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed) -> list:
+def saved_members0(path: Path, task: str, arch: str, repeats: list, cfg, n: int, data_seed: int) -> dict:
+    """Member 0 of each repeat from a one-model `--save` run: {repeat: (model, best_epoch,
+    still_improving, that run's training seconds)}. Refused unless that run trained repeat r with weight seed r on split r
+    of the same dataset, with the same settings: then its model is exactly what member 0 would be
+    (each member of a batched ensemble is its own run; checked on Timer)."""
+    from nmrm_ros.mil import load_checkpoint
+
+    ckpt = Path(path) / f"{task}_{arch}"
+    saved, meta = load_checkpoint(ckpt)
+    ens = meta["ensemble"]
+    if ens.get("split_mode") != "per_member" or ens["seeds"] != ens["split_seeds"]:
+        raise SystemExit(f"{ckpt}: not a one-model-per-repeat run (reproduce_tables --members 1 --save)")
+    if meta["data"]["n"] != n or meta["data"]["meta"].get("seed") != data_seed:
+        raise SystemExit(f"{ckpt}: trained on {meta['data']['n']} bags of data seed "
+                         f"{meta['data']['meta'].get('seed')}, not {n} of data seed {data_seed}")
+    ignore = ("seed", "threads", "members")
+    theirs = {k: v for k, v in meta["train_config"].items() if k not in ignore}
+    ours = {k: v for k, v in cfg.to_dict().items() if k not in ignore}
+    if theirs != ours:
+        diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
+        raise SystemExit(f"{ckpt}: trained with other settings ({', '.join(diff)} differ)")
+    missing = [r for r in repeats if r not in ens["seeds"]]
+    if missing:
+        raise SystemExit(f"{ckpt}: has no run of repeat(s) {missing}")
+    m = meta["metrics"]
+    return {r: (saved.member(i), m["best_epochs"][i], m["still_improving"][i], m["seconds"])
+            for i, r in enumerate(ens["seeds"]) if r in repeats}
+
+
+def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed,
+                         member0_from=None) -> list:
     """Repeat r is an ensemble of `members` models on split r (member j: weight seed r + 1000 j,
     so member 0 is the single-model run of repeat r), scored on its mean prediction; all the
-    repeats' members train in one pass. One dict per repeat: the ensemble's metrics, and member
-    0's as `single_*`."""
+    repeats' members train in one pass. With `member0_from` (a one-model `--save` run of the same
+    settings) member 0 is loaded from there and only members 1.. are trained. One dict per repeat:
+    the ensemble's metrics, and member 0's as `single_*`."""
     from nmrm_ros.mil import evaluate, model_config
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
     from nmrm_ros.mil.training import train_ensemble
 
-    layout = [(r, j) for r in repeats for j in range(members)]
+    reused = {} if member0_from is None else saved_members0(member0_from, task, arch, repeats, cfg,
+                                                            len(ds), data_seed)
+    layout = [(r, j) for r in repeats for j in range(1 if reused else 0, members)]
     seeds = [r + 1000 * j for r, j in layout]
     splits = {r: split_indices(len(ds), r) for r in repeats}
     config = model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout, hidden_size=cfg.hidden_size)
@@ -166,15 +200,25 @@ def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save,
     runs = []
     for r in repeats:
         idx = [i for i, (rr, _) in enumerate(layout) if rr == r]
+        models = [ens.member(i) for i in idx]
+        best = [result.best_epochs[i] for i in idx]
+        improving = [result.still_improving[i] for i in idx]
+        member_seeds = [seeds[i] for i in idx]
+        seconds0 = None
+        if reused:
+            model0, best0, improving0, seconds0 = reused[r]
+            models, best, improving = [model0, *models], [best0, *best], [improving0, *improving]
+            member_seeds = [r, *member_seeds]
         test = ds.subset(splits[r][2])
-        mean_metrics = table_metrics(task, evaluate(MILEnsemble.from_members([ens.member(i) for i in idx]), test))
-        single = table_metrics(task, evaluate(ens.member(idx[0]), test))
+        mean_metrics = table_metrics(task, evaluate(MILEnsemble.from_members(models), test))
+        single = table_metrics(task, evaluate(models[0], test))
         runs.append({"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
-                     "members": members, "member_seeds": [seeds[i] for i in idx], **mean_metrics,
+                     "members": members, "member_seeds": member_seeds, **mean_metrics,
                      **{f"single_{k}": v for k, v in single.items()},
                      "seconds": result.seconds, "epochs": result.epochs_run,
-                     "best_epoch": max(result.best_epochs[i] for i in idx),
-                     "still_improving": any(result.still_improving[i] for i in idx),
+                     "best_epoch": max(best), "still_improving": any(improving),
+                     "member0_from": None if member0_from is None else str(member0_from),
+                     "member0_seconds": seconds0,  # the reused run's own training time (not in `seconds`)
                      "config": cfg.to_dict()})
     return runs
 
@@ -317,6 +361,9 @@ def main() -> None:
                         help="each repeat an ensemble of this many models on its split, scored on their "
                              "mean (as `nmrm train --ensemble M`); member 0 is also reported alone "
                              "(default: the task's `members` in config/mil_training.yaml: Timer 3, else 1)")
+    parser.add_argument("--member0-from", type=Path, default=None, metavar="DIR",
+                        help="with --members M: take member 0 of each repeat from this one-model --save run "
+                             "of the same settings and data (refused otherwise); train only members 1..M-1")
     parser.add_argument("--save", type=Path, default=None, metavar="DIR",
                         help="also save each ensemble's checkpoint as DIR/<task>_<arch>.{pt,json}")
     parser.add_argument("--from-json", type=Path, nargs="*", default=None, metavar="FILE",
@@ -338,8 +385,8 @@ def main() -> None:
     if args.max_epochs is not None:
         overrides["max_epochs"] = args.max_epochs
     repeats = list(args.seeds) if args.seeds else list(range(args.repeats))
-    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every, args.save, args.members)
-            for t in tasks for a in args.archs]
+    jobs = [(t, a, repeats, args.n, args.data_seed, overrides, args.threads, args.log_every, args.save, args.members,
+             args.member0_from) for t in tasks for a in args.archs]
     print(f"# {len(jobs)} ensembles of {len(repeats)}: tasks {tasks}, archs {args.archs}, repeats "
           f"(seeds/splits) {repeats}, data seed {args.data_seed}, overrides {overrides}, "
           f"{args.jobs} workers x {args.threads} threads", flush=True)
