@@ -4,12 +4,16 @@ validation) labels is swapped between trajectories.
 
     .venv/bin/python bench/noise_study.py                                   # the paper's grid
     .venv/bin/python bench/noise_study.py --tasks key --max-epochs 40 --out bench/results/noise_key
+    .venv/bin/python bench/noise_study.py --tasks timer --jobs 2 --out bench/results/noise_study_timer
+    .venv/bin/python bench/noise_study.py --from-json a.json b.json --out all   # one table and plot
 
 For each (task, architecture), every (p, repeat) pair is one member of a single ensemble trained in
 one pass (nmrm_ros.mil.train_ensemble with per-member swap fractions): member (p, r) has weight
 seed r and split r (80/10/10 of one screened dataset, data seed 0), so across p only the labels
-differ. Test splits are clean. Writes OUT.json, OUT.txt (table, and the paper's check: the
-smallest p at which the CSC model is as bad as the noise-free Instance Space NN) and OUT.png.
+differ. Test splits are clean. (task, architecture) ensembles go to --jobs worker processes.
+Writes OUT.json, OUT.txt (table, and the paper's check: the smallest p at which the CSC model is as
+bad as the noise-free Instance Space NN) and OUT.png. --from-json trains nothing: it merges earlier
+OUT.json files (e.g. one per task) into one table and one plot.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import argparse
 import json
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +37,7 @@ NAMES = {"csc_lstm": "CSC Instance Space LSTM", "instance_lstm": "Instance Space
 
 
 def run(task: str, arch: str, levels: list, repeats: int, max_epochs: int | None, threads: int) -> list:
+    """Train one (task, architecture) ensemble of every (p, repeat); one row per member."""
     import torch
 
     from nmrm_ros.mil import evaluate, load_train_config, model_config
@@ -86,6 +92,13 @@ def summarise(rows: list, tasks: list, levels: list) -> str:
             worse = [p for p in levels if csc[p] >= np.mean(base)]
             lines.append(f"  {task:8s} {metric:10s}: Instance NN at p=0 {np.mean(base):.4f}; CSC reaches it at "
                          f"p = {worse[0] if worse else f'> {levels[-1]}'}")
+    lines.append("\nruns still improving at their epoch limit (best epoch in the last patience epochs)")
+    for task in tasks:
+        for arch in ARCHS:
+            mine = [x for x in rows if x["task"] == task and x["arch"] == arch]
+            if mine:
+                lines.append(f"  {task:8s} {NAMES[arch]:24s}: {sum(x['still_improving'] for x in mine)} of "
+                             f"{len(mine)} ({mine[0]['epochs']} epochs)")
     return "\n".join(lines)
 
 
@@ -125,20 +138,48 @@ def main() -> None:
     parser.add_argument("--max-epochs", type=int, default=None, help="override each task's max_epochs")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("bench/results/noise_study"))
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes, one (task, architecture) each")
+    parser.add_argument("--from-json", type=Path, nargs="*", default=None, metavar="FILE",
+                        help="train nothing: one table and plot of the rows in these OUT.json files")
     args = parser.parse_args()
     start = time.perf_counter()
-    print(f"# label-noise study: tasks {args.tasks}, archs {args.archs}, p {args.levels}, "
-          f"{args.repeats} repeats, max epochs {args.max_epochs or 'per task config'}", flush=True)
-    rows = []
-    for task in args.tasks:
-        for arch in args.archs:
-            rows += run(task, arch, args.levels, args.repeats, args.max_epochs, args.threads)
-            args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
-    text = summarise(rows, args.tasks, args.levels) + f"\n\n# wall time {time.perf_counter() - start:.0f} s"
+    if args.from_json:
+        rows = merge_rows(args.from_json)
+        tasks = [t for t in ("timer", "moving", "key", "charger") if any(x["task"] == t for x in rows)]
+        levels = sorted({x["p"] for x in rows})
+        epochs = {t: sorted({x["epochs"] for x in rows if x["task"] == t}) for t in tasks}
+        text = summarise(rows, tasks, levels) + (f"\n\n# rows of {', '.join(map(str, args.from_json))}; "
+                                                 f"epochs run per task {epochs}")
+    else:
+        print(f"# label-noise study: tasks {args.tasks}, archs {args.archs}, p {args.levels}, "
+              f"{args.repeats} repeats, max epochs {args.max_epochs or 'per task config'}, "
+              f"{args.jobs} workers x {args.threads} threads", flush=True)
+        tasks, levels = args.tasks, args.levels
+        jobs = [(task, arch) for task in tasks for arch in args.archs]
+        rows = []
+        with ProcessPoolExecutor(args.jobs) as pool:
+            futures = [pool.submit(run, task, arch, levels, args.repeats, args.max_epochs, args.threads)
+                       for task, arch in jobs]
+            for future in futures:
+                rows += future.result()
+                args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+        text = summarise(rows, tasks, levels) + f"\n\n# wall time {time.perf_counter() - start:.0f} s"
     print(text)
     args.out.with_suffix(".txt").write_text(text + "\n")
-    plot(rows, args.tasks, args.levels, args.out.with_suffix(".png"))
+    plot(rows, tasks, levels, args.out.with_suffix(".png"))
 
+
+def merge_rows(paths: list) -> list:
+    """The rows of several OUT.json files; refused if a (task, architecture, p, repeat) repeats."""
+    rows, seen = [], {}
+    for path in paths:
+        for row in json.loads(Path(path).read_text()):
+            key = (row["task"], row["arch"], row["p"], row["repeat"])
+            if key in seen:
+                raise SystemExit(f"{path}: {key} is also in {seen[key]}")
+            seen[key] = path
+            rows.append(row)
+    return rows
 
 if __name__ == "__main__":
     main()
