@@ -117,3 +117,73 @@ def test_explain_refuses_a_task_the_checkpoint_was_not_trained_on(small_key_chec
                              str(tmp_path / "missing"), "--out", str(tmp_path)],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+@pytest.fixture(scope="module")
+def lander_checkpoint(tmp_path_factory):
+    """An untrained CSC model of Lunar Lander's size (weight seed 3; min-max-like normalisation):
+    the views are checked against its own online steps, so it need not be trained."""
+    import torch
+
+    from nmrm_ros.mil import save_checkpoint
+    from nmrm_ros.mil.models import build_model, model_config
+
+    torch.manual_seed(3)
+    model = build_model(model_config("csc_lstm", "lunar_lander", 8))
+    model.set_normalisation(torch.zeros(8), torch.full((8,), 2.0), return_scale=100.0)
+    return save_checkpoint(model.eval(), tmp_path_factory.mktemp("ll") / "ll_csc", task="lunar_lander")
+
+
+def test_lander_probes_do_what_they_say():
+    from nmrm_ros.oracles.lunar_lander import r_hover
+
+    probes = dict((p.name, s) for p, s in probe_states("lunar_lander"))
+    assert list(probes) == ["correct", "no hover", "too short", "never landed"]
+    pad = {name: oracle_traces("lunar_lander", s)[1][:, 0] for name, s in probes.items()}
+    for name in ("correct", "no hover", "too short"):
+        assert probes[name].shape == (500, 8) and pad[name].max() > 0, name
+    assert pad["correct"].max() == 50 and pad["no hover"].max() == 50 and 0 < pad["too short"].max() < 50
+    hover_after = lambda name: r_hover(probes[name].astype(np.float64))[pad[name] >= 50].sum()  # noqa: E731
+    assert hover_after("correct") > 100 and hover_after("no hover") == 0
+    # never landed: no pad step, and it ends early by leaving the screen (|x| >= 1)
+    assert pad["never landed"].max() == 0 and len(probes["never landed"]) < 500
+    assert abs(probes["never landed"][-1, 0]) >= 1.0
+    # deterministic: a second rollout is the same path
+    np.testing.assert_array_equal(probe_states("lunar_lander")[0][1], probes["correct"])
+
+
+def test_lander_contexts_mean_what_their_labels_say():
+    contexts = context_prefixes("lunar_lander")
+    pads = {c.label: oracle_traces("lunar_lander", prefix)[1][-1, 0] for c, prefix in contexts}
+    assert pads == {"not landed yet": 0, "25 steps on the pad": 25, "took off after 50 on the pad": 50}
+    (_, prefix), = [(c, p) for c, p in contexts if c.label == "took off after 50 on the pad"]
+    assert prefix[-1, 6] == 0 and prefix[-1, 7] == 0  # in the air
+
+
+def test_lander_reward_map_is_the_online_model_and_the_oracle_on_the_grid(lander_checkpoint):
+    from nmrm_ros.oracles.lunar_lander import r_hover, r_no_contact, r_shaping
+
+    model, _ = load_checkpoint(lander_checkpoint)
+    (_, prefix), = [(c, p) for c, p in context_prefixes("lunar_lander") if c.t == 300]
+    n = 5
+    learnt = learnt_reward_map(model, prefix, n, "lunar_lander")
+    xs, ys, points = grid(n, "lunar_lander")
+    assert points.shape == (25, 8) and xs[0] == -1 and xs[-1] == 1 and ys[0] == 0 and ys[-1] == 1.5
+    np.testing.assert_array_equal(points[:, 6], (points[:, 1] == 0).astype(np.float32))
+    expected = [_online_after(model, prefix).step(p)[0] for p in points]
+    np.testing.assert_allclose(learnt.ravel(), expected, atol=1e-5)
+    # after 50 steps on the pad the oracle pays no-contact + hover + shaping towards y = 1
+    p = points.astype(np.float64)
+    np.testing.assert_allclose(oracle_reward_map("lunar_lander", prefix, n).ravel(),
+                               r_no_contact(p) + r_hover(p) + r_shaping(p, 1.0))
+
+
+def test_explain_draws_lander_maps_and_probes(lander_checkpoint, tmp_path):
+    figures = explain(lander_checkpoint, tmp_path, n=6, grid_size=9)
+    names = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert names == ["hidden_embedding.png", "probe_correct.png", "probe_never_landed.png",
+                     "probe_no_hover.png", "probe_too_short.png", "reward_maps.png"]
+    assert [f.section for f in figures].count("Probe trajectories") == 4
+    for name in names:
+        data = (tmp_path / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name

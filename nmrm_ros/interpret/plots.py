@@ -14,6 +14,7 @@ from matplotlib.patches import Rectangle  # noqa: E402
 
 from ..tasks.navigation import CHARGE_Y_MAX, KEY_ZONE, SPAWN_ZONES, TREASURE_ZONE  # noqa: E402
 from .embeddings import ORACLE_VARIABLE, Embedding  # noqa: E402
+from .reward_maps import extent  # noqa: E402
 
 NAVIGATION = ("timer", "moving", "key", "charger")
 
@@ -41,6 +42,26 @@ def draw_arena(ax, task: str) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
+
+
+def draw_lander_zones(ax) -> None:
+    """Lunar Lander's screen: the pad (-0.2 <= x <= 0.2 on the ground, gold) and the hover zone
+    (|x| <= 0.5, 0.75 <= y <= 1.25, green) of the oracle (paper App. D.1)."""
+    ax.plot([-0.2, 0.2], [0, 0], color="goldenrod", lw=4, label="pad", solid_capstyle="butt")
+    ax.add_patch(Rectangle((-0.5, 0.75), 1.0, 0.5, fill=False, edgecolor="green", lw=1.5, label="hover zone"))
+    ax.set_xlim(-1, 1)
+    ax.set_ylim(-0.05, 1.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+
+
+def draw_zones(ax, task: str) -> None:
+    """The task's arena (navigation) or screen (Lunar Lander) with its zones."""
+    if task == "lunar_lander":
+        draw_lander_zones(ax)
+    else:
+        draw_arena(ax, task)
 
 
 def _save(fig, path: Path) -> Path:
@@ -80,11 +101,12 @@ def reward_map_figure(task: str, maps: list, path: Path) -> Path:
     for j, (label, learnt, oracle) in enumerate(maps):
         for i, (name, m) in enumerate((("learnt", learnt), ("oracle", oracle))):
             ax = axes[i, j]
-            im = ax.imshow(m, origin="lower", extent=(0, 1, 0, 1), vmin=lo, vmax=hi, cmap="coolwarm")
-            draw_arena(ax, task)
+            im = ax.imshow(m, origin="lower", extent=extent(task), vmin=lo, vmax=hi, cmap="coolwarm")
+            draw_zones(ax, task)
             ax.set_title(f"{name}: {label}", fontsize=9)
     fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8, label="reward for one step at (x, y)")
-    fig.suptitle(f"{task}: reward over the arena after a context", fontsize=10)
+    fig.suptitle(f"{task}: reward over the {'screen' if task == 'lunar_lander' else 'arena'} "
+                 "after a context", fontsize=10)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
@@ -97,8 +119,8 @@ def trace_figure(task: str, title: str, states: np.ndarray, rewards: dict, hidde
     panels = 3 if hidden is not None and hidden.shape[-1] > 0 else 2
     fig, axes = plt.subplots(1, panels, figsize=(4.4 * panels, 4))
     ax = axes[0]
-    if task in NAVIGATION:
-        draw_arena(ax, task)
+    if task in NAVIGATION or task == "lunar_lander":
+        draw_zones(ax, task)
         ax.legend(loc="lower right", fontsize=6)
     ax.plot(states[:, 0], states[:, 1], "-", color="black", lw=0.8)
     sc = ax.scatter(states[:, 0], states[:, 1], c=np.arange(len(states)), s=8, cmap="viridis", zorder=3)

@@ -102,5 +102,10 @@ def build(probe: Probe, length: int = EPISODE_LENGTH) -> np.ndarray:
 
 
 def probe_states(task: str) -> list:
-    """[(Probe, states (100, 2) float32)] of a navigation task; [] for tasks without probes."""
+    """[(Probe, states (100, 2) float32)] of a navigation task; Lunar Lander's rollouts
+    (`lander_probes`: (LanderProbe, states (T, 8))); [] for tasks without probes."""
+    if task == "lunar_lander":
+        from .lander_probes import lander_probe_states
+
+        return lander_probe_states()
     return [(probe, build(probe)) for probe in PROBES.get(task, ())]

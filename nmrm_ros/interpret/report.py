@@ -4,7 +4,8 @@
     explain("runs/demo/csc", "runs/explain", bag="bags/run1")   # a recording's episodes
 
 Views: hidden-state embeddings (models with an LSTM), reward maps and probe trajectories
-(navigation tasks), and per-episode views (with a bag: path, served reward, oracle reward).
+(navigation tasks and Lunar Lander), and per-episode views (with a bag: path, served reward,
+oracle reward).
 """
 
 from __future__ import annotations
@@ -77,12 +78,14 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
             emb, task, f"{name} ({arch}) on {task}", out / "hidden_embedding.png"),
             f"h'_(t+1) of {described}; {emb.projection}."))
 
-    maps = [(c.label, learnt_reward_map(model, prefix, grid_size), oracle_reward_map(task, prefix, grid_size))
+    maps = [(c.label, learnt_reward_map(model, prefix, grid_size, task), oracle_reward_map(task, prefix, grid_size))
             for c, prefix in context_prefixes(task)]
     if maps:
         figures.append(Figure("Reward maps", plots.reward_map_figure(task, maps, out / "reward_maps.png"),
                               "Reward for one step at each (x, y) after a context (a probe cut at "
-                              "step t); learnt above, oracle below."))
+                              "step t); learnt above, oracle below." + (
+                                  " The lander at rest there (velocities and angle 0); legs on the "
+                                  "ground on the bottom row only." if task == "lunar_lander" else "")))
 
     for probe, path in probe_states(task):
         rewards, hidden = model_traces(model, path)

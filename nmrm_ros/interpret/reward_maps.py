@@ -1,10 +1,12 @@
 """Reward maps: the reward a model would give at every (x, y) of the arena, one step after a
-fixed context (paper Fig. 6, top row).
+fixed context (paper Fig. 6, top row; Lunar Lander: App. F).
 
 A context is a probe trajectory cut at step t: the model consumes s_0..s_{t-1}, reaching its
 hidden state h'_t; the map's value at grid point p is r'_t for s_t = p (the hidden state is then
 updated with p itself, as it is online). The oracle's map is the same for the ground truth.
-Maps are (n, n) arrays indexed [iy, ix] over `grid(n)`, y upwards.
+Maps are (n, n) arrays indexed [iy, ix] over `grid(n, task)`, y upwards. Navigation: the unit
+square. Lunar Lander: x in [-1, 1], y in [0, 1.5], the lander at rest (velocities and angle 0),
+both legs touching the ground on the bottom row (y = 0) and neither above it.
 """
 
 from __future__ import annotations
@@ -34,14 +36,29 @@ CONTEXTS: dict = {
     "key": (Context("no key", "no key", 3), Context("key held", "key first", 10)),
     "charger": (Context("charge 0.2", "over-charged", 14), Context("charge 0.5", "over-charged", 29),
                 Context("charge 0.9", "over-charged", 49)),
+    # the "correct" probe first touches the pad at step 156 and has 50 steps there at step 205
+    "lunar_lander": (Context("not landed yet", "correct", 100), Context("25 steps on the pad", "correct", 181),
+                     Context("took off after 50 on the pad", "correct", 300)),
 }
+LANDER_EXTENT = (-1.0, 1.0, 0.0, 1.5)  # x_min, x_max, y_min, y_max of Lunar Lander's maps
 
 
-def grid(n: int = 41) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(xs (n,), ys (n,), points (n * n, 2) float32 in row-major [iy, ix] order) over [0, 1]^2."""
-    xs = np.linspace(0.0, 1.0, n)
-    gx, gy = np.meshgrid(xs, xs)
-    return xs, xs, np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32)
+def extent(task: str | None = None) -> tuple[float, float, float, float]:
+    """(x_min, x_max, y_min, y_max) of a task's maps."""
+    return LANDER_EXTENT if task == "lunar_lander" else (0.0, 1.0, 0.0, 1.0)
+
+
+def grid(n: int = 41, task: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xs (n,), ys (n,), points (n * n, d) float32 in row-major [iy, ix] order): navigation (d = 2)
+    over [0, 1]^2; Lunar Lander (d = 8) as the module says."""
+    x0, x1, y0, y1 = extent(task)
+    xs, ys = np.linspace(x0, x1, n), np.linspace(y0, y1, n)
+    gx, gy = np.meshgrid(xs, ys)
+    points = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    if task == "lunar_lander":
+        contact = (points[:, 1] <= y0)[:, None].astype(np.float64)
+        points = np.concatenate([points, np.zeros((len(points), 4)), contact, contact], axis=1)
+    return xs, ys, points.astype(np.float32)
 
 
 def _with_prefix(prefix: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -51,16 +68,16 @@ def _with_prefix(prefix: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.concatenate([head, points[:, None, :]], axis=1)
 
 
-def learnt_reward_map(model, prefix: np.ndarray, n: int = 41) -> np.ndarray:
-    """The model's r'_t over the grid after consuming `prefix` (t, d): (n, n)."""
-    _, _, points = grid(n)
+def learnt_reward_map(model, prefix: np.ndarray, n: int = 41, task: str | None = None) -> np.ndarray:
+    """The model's r'_t over `task`'s grid after consuming `prefix` (t, d): (n, n)."""
+    _, _, points = grid(n, task)
     rewards, _ = model_traces(model, _with_prefix(np.asarray(prefix, np.float32), points))
     return rewards[:, -1].reshape(n, n)
 
 
 def oracle_reward_map(task: str, prefix: np.ndarray, n: int = 41) -> np.ndarray:
-    """The oracle's r_t over the grid after `prefix` (t, d): (n, n)."""
-    _, _, points = grid(n)
+    """The oracle's r_t over the task's grid after `prefix` (t, d): (n, n)."""
+    _, _, points = grid(n, task)
     rewards, _ = oracle_traces(task, _with_prefix(np.asarray(prefix, np.float64), points))
     return rewards[:, -1].reshape(n, n)
 

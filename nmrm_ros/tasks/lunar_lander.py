@@ -71,6 +71,15 @@ class ScriptedLanderController:
         self.pad_steps = 0
         self.phase = "descend" if self.land else "hover"
 
+    def set_plan(self, wait: int, land: bool = True, hover_x: float = 0.0, hover_y: float = 1.0,
+                 noise: float = 0.0) -> None:
+        """Replace this episode's random plan (after `reset`): stay `wait` steps on the pad
+        (if `land`), then hover at (hover_x, hover_y) with action noise std `noise`."""
+        self.wait, self.land, self.hover_x, self.hover_y, self.noise = int(wait), bool(land), \
+            float(hover_x), float(hover_y), float(noise)
+        self.pad_steps = 0
+        self.phase = "descend" if self.land else "hover"
+
     def __call__(self, s: np.ndarray) -> np.ndarray:
         x, y, vx, vy, ang, vang, cl, cr = (float(v) for v in s)
         on_ground = cl > 0.5 and cr > 0.5
