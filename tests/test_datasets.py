@@ -123,3 +123,15 @@ def test_deduplicated_drops_exact_repeats_only():
     out2, dropped2 = relabelled.deduplicated()
     assert dropped2 == 2 and len(out2) == 31
     assert ds.deduplicated() == (ds, 0)
+
+
+def test_save_is_atomic_and_appends_npz_like_numpy(tmp_path):
+    """save() writes a temporary file and renames it: no temporary is left, an existing file is
+    replaced whole, and a name without ".npz" gets it (the returned path is the file written)."""
+    ds = generate_screened("key", 5, seed=1)
+    other = generate_screened("key", 7, seed=2)
+    path = other.save(tmp_path / "key.npz")
+    assert ds.save(path) == path and len(TrajectoryDataset.load(path)) == 5
+    bare = ds.save(tmp_path / "bare")
+    assert bare == tmp_path / "bare.npz" and len(TrajectoryDataset.load(bare)) == 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bare.npz", "key.npz"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,13 +70,22 @@ class TrajectoryDataset:
         return out, len(self) - len(keep)
 
     def save(self, path: str | Path) -> Path:
-        """Write an .npz (arrays) with the task and meta as JSON inside."""
+        """Write an .npz (arrays) with the task and meta as JSON inside. Written to a temporary
+        file first and renamed, so a reader (or a second writer of the same cache file) never
+        sees half a file. ".npz" is appended to a path without it, as numpy does."""
         path = Path(path)
+        if not path.name.endswith(".npz"):
+            path = path.with_name(path.name + ".npz")
         arrays = {k: getattr(self, k) for k in ("states", "lengths", "returns", "rewards", "hidden",
                                                 "actions", "final_states", "classes")
                   if getattr(self, k) is not None}
         header = json.dumps({"task": self.task, "meta": self.meta})
-        np.savez_compressed(path, _header=np.array(header), **arrays)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
+        try:
+            np.savez_compressed(tmp, _header=np.array(header), **arrays)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
     @classmethod
