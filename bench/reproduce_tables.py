@@ -90,13 +90,19 @@ def load_dataset(task: str, n: int, seed: int):
 
 
 def parse_overrides(pairs: list) -> dict:
-    """["lr=1e-3", "schedule=cosine"] -> {"lr": 0.001, "schedule": "cosine"}."""
+    """["lr=1e-3", "schedule=cosine"] -> {"lr": 0.001, "schedule": "cosine"} (numbers as floats)."""
     import yaml
 
     out = {}
     for pair in pairs or []:
         key, _, value = pair.partition("=")
-        out[key] = yaml.safe_load(value)
+        parsed = yaml.safe_load(value)
+        if isinstance(parsed, str):  # YAML 1.1 reads "3e-3" (no dot) as a string
+            try:
+                parsed = float(parsed)
+            except ValueError:
+                pass
+        out[key] = parsed
     return out
 
 
