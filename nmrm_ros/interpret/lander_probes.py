@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..tasks.lunar_lander import EPISODE_LENGTH, RewardlessLunarLander, ScriptedLanderController
+from ..tasks.lunar_lander import EPISODE_LENGTH, RewardlessLunarLander, ScriptedLanderController, run_episode
 
 
 @dataclass(frozen=True)
@@ -43,15 +43,9 @@ def rollout_probe(probe: LanderProbe, length: int = EPISODE_LENGTH) -> np.ndarra
     env = RewardlessLunarLander(episode_length=length)
     controller = ScriptedLanderController(np.random.default_rng(probe.seed))
     controller.set_plan(probe.wait, probe.land, probe.hover_x, probe.hover_y, noise=0.0)
-    obs, _ = env.reset(seed=probe.seed)
-    states = [obs]
-    for _ in range(length - 1):
-        obs, _, terminated, _, _ = env.step(controller(obs))
-        states.append(obs)
-        if terminated:
-            break
+    states, _, _ = run_episode(env, controller, probe.seed, length - 1)
     env.close()
-    return np.asarray(states, np.float32)
+    return states
 
 
 def lander_probe_states() -> list:

@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
+from ..oracles.lunar_lander import HOVER_ZONE, PAD_HALF_WIDTH  # noqa: E402
 from ..tasks.navigation import CHARGE_Y_MAX, KEY_ZONE, SPAWN_ZONES, TREASURE_ZONE  # noqa: E402
 from .embeddings import ORACLE_VARIABLE, Embedding  # noqa: E402
 from .reward_maps import extent  # noqa: E402
@@ -47,8 +48,9 @@ def draw_arena(ax, task: str) -> None:
 def draw_lander_zones(ax) -> None:
     """Lunar Lander's screen: the pad (-0.2 <= x <= 0.2 on the ground, gold) and the hover zone
     (|x| <= 0.5, 0.75 <= y <= 1.25, green) of the oracle (paper App. D.1)."""
-    ax.plot([-0.2, 0.2], [0, 0], color="goldenrod", lw=4, label="pad", solid_capstyle="butt")
-    ax.add_patch(Rectangle((-0.5, 0.75), 1.0, 0.5, fill=False, edgecolor="green", lw=1.5, label="hover zone"))
+    x0, x1, y0, y1 = HOVER_ZONE
+    ax.plot([-PAD_HALF_WIDTH, PAD_HALF_WIDTH], [0, 0], color="goldenrod", lw=4, label="pad", solid_capstyle="butt")
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="green", lw=1.5, label="hover zone"))
     ax.set_xlim(-1, 1)
     ax.set_ylim(-0.05, 1.5)
     ax.set_aspect("equal")

@@ -14,11 +14,14 @@ from .base import Oracle
 
 PAD_TARGET = 50
 COMPONENTS = ("pad", "no_contact", "hover", "shaping")
+PAD_HALF_WIDTH = 0.2  # the pad: |x| <= 0.2 on the ground
+HOVER_ZONE = (-0.5, 0.5, 0.75, 1.25)  # x_min, x_max, y_min, y_max
 
 
 def r_pad(s: np.ndarray) -> np.ndarray:
     """1 if -0.2 <= x <= 0.2 and both legs touch the ground. s: (n, 8) -> (n,)."""
-    return ((s[:, 0] >= -0.2) & (s[:, 0] <= 0.2) & (s[:, 6] == 1) & (s[:, 7] == 1)).astype(np.float64)
+    return ((s[:, 0] >= -PAD_HALF_WIDTH) & (s[:, 0] <= PAD_HALF_WIDTH) & (s[:, 6] == 1)
+            & (s[:, 7] == 1)).astype(np.float64)
 
 
 def r_no_contact(s: np.ndarray) -> np.ndarray:
@@ -28,7 +31,8 @@ def r_no_contact(s: np.ndarray) -> np.ndarray:
 
 def r_hover(s: np.ndarray) -> np.ndarray:
     """1 if -0.5 <= x <= 0.5 and 0.75 <= y <= 1.25."""
-    return ((s[:, 0] >= -0.5) & (s[:, 0] <= 0.5) & (s[:, 1] >= 0.75) & (s[:, 1] <= 1.25)).astype(np.float64)
+    x0, x1, y0, y1 = HOVER_ZONE
+    return ((s[:, 0] >= x0) & (s[:, 0] <= x1) & (s[:, 1] >= y0) & (s[:, 1] <= y1)).astype(np.float64)
 
 
 def r_shaping(s: np.ndarray, y_target: float) -> np.ndarray:

@@ -61,20 +61,20 @@ class ScriptedLanderController:
         self.reset()
 
     def reset(self) -> None:
+        """Draw a new random plan for the next episode."""
         r = self.rng
         # wait on the pad: not at all, shortly, past the 50-step target, or for ever
-        self.wait = int(r.choice([0, r.integers(1, 50), r.integers(50, 120), 10**6]))
-        self.land = bool(r.random() < 0.85)
-        self.hover_y = float(r.uniform(0.4, 1.6))
-        self.hover_x = float(r.uniform(-0.9, 0.9))
-        self.noise = float(r.choice([0.0, 0.2, 0.5]))
-        self.pad_steps = 0
-        self.phase = "descend" if self.land else "hover"
+        wait = int(r.choice([0, r.integers(1, 50), r.integers(50, 120), 10**6]))
+        land = bool(r.random() < 0.85)
+        hover_y = float(r.uniform(0.4, 1.6))
+        hover_x = float(r.uniform(-0.9, 0.9))
+        noise = float(r.choice([0.0, 0.2, 0.5]))
+        self.set_plan(wait, land, hover_x, hover_y, noise)
 
     def set_plan(self, wait: int, land: bool = True, hover_x: float = 0.0, hover_y: float = 1.0,
                  noise: float = 0.0) -> None:
-        """Replace this episode's random plan (after `reset`): stay `wait` steps on the pad
-        (if `land`), then hover at (hover_x, hover_y) with action noise std `noise`."""
+        """Start an episode with this plan (`reset` draws one at random): stay `wait` steps on
+        the pad (if `land`), then hover at (hover_x, hover_y) with action noise std `noise`."""
         self.wait, self.land, self.hover_x, self.hover_y, self.noise = int(wait), bool(land), \
             float(hover_x), float(hover_y), float(noise)
         self.pad_steps = 0
@@ -109,6 +109,22 @@ class ScriptedLanderController:
         return np.clip(a, -1.0, 1.0).astype(np.float32)
 
 
+def run_episode(env: RewardlessLunarLander, policy, seed: int, steps: int):
+    """Reset `env` with `seed` and take up to `steps` actions `policy(obs)`, stopping when the
+    episode ends. Returns (states (L + 1, 8) float32, actions (L, 2) float32, terminated bool)."""
+    obs, _ = env.reset(seed=seed)
+    states, actions = [obs], []
+    terminated = False
+    for _ in range(steps):
+        a = policy(obs)
+        obs, _, terminated, truncated, _ = env.step(a)
+        states.append(obs)
+        actions.append(a)
+        if terminated or truncated:
+            break
+    return np.asarray(states, dtype=np.float32), np.asarray(actions, dtype=np.float32), bool(terminated)
+
+
 def rollout_lunar_lander(n: int, seed: int, policy: str = "scripted",
                          episode_length: int = EPISODE_LENGTH):
     """Roll out `n` episodes sequentially (box2d cannot be batched).
@@ -122,21 +138,13 @@ def rollout_lunar_lander(n: int, seed: int, policy: str = "scripted",
     controller = ScriptedLanderController(rng) if policy == "scripted" else None
     if policy not in ("scripted", "random"):
         raise ValueError(f"unknown policy {policy!r}: use 'scripted' or 'random'")
+    def random_policy(_obs: np.ndarray) -> np.ndarray:
+        return rng.uniform(-1, 1, 2).astype(np.float32)
+
     out = []
     for i in range(n):
-        obs, _ = env.reset(seed=seed + i)
         if controller is not None:
             controller.reset()
-        states, actions = [obs], []
-        terminated = False
-        for _ in range(episode_length):
-            a = controller(obs) if controller is not None else rng.uniform(-1, 1, 2).astype(np.float32)
-            obs, _, terminated, truncated, _ = env.step(a)
-            states.append(obs)
-            actions.append(a)
-            if terminated or truncated:
-                break
-        out.append((np.asarray(states, dtype=np.float32), np.asarray(actions, dtype=np.float32),
-                    bool(terminated)))
+        out.append(run_episode(env, controller or random_policy, seed + i, episode_length))
     env.close()
     return out
