@@ -19,11 +19,11 @@ is the member whose hidden state the online model publishes (the best on validat
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import nn
 
-from .models import MILOutput, MILRewardModel, ModelConfig, build_model, dropout_mask, member_dropout_mask
+from .dropout import MemberDropout, dropout_mask, relu_dropout
+from .models import MILOutput, MILRewardModel, ModelConfig, build_model
 
 
 def _key(name: str) -> str:
@@ -54,8 +54,9 @@ class MILEnsemble(nn.Module):
         self._head = [n for n, m in template.head.named_children() if isinstance(m, nn.Linear)]
         self.dropout = float(config.dropout)
         self.leaky = config.output_activation == "leaky_relu"
-        #: per-member dropout streams (`seed_dropout`); None: masks from torch's generator
-        self.dropout_streams: list | None = None
+        #: per-member dropout masks (`seed_dropout`); None: masks from torch's generator
+        self.dropout_masks: MemberDropout | None = None
+        self._step_masks = None  # this forward's masks, one per activation in order
 
     # ----------------------------------------------------------------- members in and out
     @classmethod
@@ -107,7 +108,8 @@ class MILEnsemble(nn.Module):
         """Give member k its own dropout stream, seeded by `seeds[k]` (training does this)."""
         if len(seeds) != self.members:
             raise ValueError(f"{self.members} members need {self.members} dropout seeds, got {len(seeds)}")
-        self.dropout_streams = [np.random.SFC64(np.random.SeedSequence([int(s), 0xD80])) for s in seeds]
+        widths = list(self.config.fe_sizes) + list(self.config.head_sizes)  # each ReLU's width, in order
+        self.dropout_masks = MemberDropout(self.dropout, seeds, widths) if self.dropout > 0 else None
 
     # ----------------------------------------------------------------- forward
     def _linear(self, z: torch.Tensor, prefix: str, name: str) -> torch.Tensor:
@@ -116,13 +118,10 @@ class MILEnsemble(nn.Module):
         return torch.baddbmm(b.unsqueeze(1), z, w.transpose(1, 2))
 
     def _activation(self, z: torch.Tensor) -> torch.Tensor:
-        z = torch.relu(z)
-        if self.training and self.dropout > 0:
-            if self.dropout_streams is not None:
-                z = z * member_dropout_mask(z, self.dropout, self.dropout_streams, *self._dropout_layout)
-            else:
-                z = z * dropout_mask(z, self.dropout)
-        return z
+        if not (self.training and self.dropout > 0):
+            return torch.relu(z)
+        mask = next(self._step_masks) if self._step_masks is not None else dropout_mask(z, self.dropout)
+        return relu_dropout(z, mask, 1.0 / (1.0 - self.dropout))
 
     def _features(self, x: torch.Tensor) -> torch.Tensor:
         """(K, N, d) raw instances -> (K, N, F) features."""
@@ -180,13 +179,15 @@ class MILEnsemble(nn.Module):
             lengths = lengths.unsqueeze(0).expand(K, -1)
         _, B, T, d = x.shape
         mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
-        if self.training and self.dropout > 0 and self.dropout_streams is not None:
+        self._step_masks = None
+        if self.training and self.dropout_masks is not None:
             # each member's own longest bag: its dropout masks cover only its own instances
-            self._dropout_layout = (B, lengths.max(dim=1).values.tolist() if B else [0] * K)
+            self._step_masks = iter(self.dropout_masks.take(B, member_steps(lengths)))
         f = self._features(x.reshape(K, B * T, d))
         arch = self.config.architecture
         if arch == "instance_nn":
             rewards = self._head_out(f).view(K, B, T) * mask
+            self._step_masks = None
             return MILOutput(rewards.sum(-1), rewards, x.new_zeros(K, B, T, 0))
         hidden = self._lstm(f.view(K, B, T, -1))
         flat_hidden = hidden.reshape(K, B * T, -1)
@@ -194,6 +195,7 @@ class MILEnsemble(nn.Module):
             partial = self._head_out(flat_hidden).view(K, B, T)
             previous = torch.cat([partial.new_zeros(K, B, 1), partial[..., :-1]], dim=-1)
             rewards = (partial - previous) * mask
+            self._step_masks = None
             last = (lengths - 1).clamp(min=0)
             returns = partial.gather(-1, last[..., None]).squeeze(-1) * (lengths > 0).to(x.dtype)
             return MILOutput(returns, rewards, hidden * mask[..., None])
@@ -201,7 +203,13 @@ class MILEnsemble(nn.Module):
             rewards = self._head_out(torch.cat([f, flat_hidden], dim=-1)).view(K, B, T) * mask
         else:  # instance_lstm
             rewards = self._head_out(flat_hidden).view(K, B, T) * mask
+        self._step_masks = None
         return MILOutput(rewards.sum(-1), rewards, hidden * mask[..., None])
+
+
+def member_steps(lengths: torch.Tensor) -> list:
+    """Each member's longest bag in a batch of lengths (K, B) (0s for an empty batch)."""
+    return lengths.max(dim=1).values.tolist() if lengths.shape[-1] else [0] * lengths.shape[0]
 
 
 def init_ensemble(config: ModelConfig, seeds: list) -> MILEnsemble:

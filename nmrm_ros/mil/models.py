@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from .dropout import dropout_mask
+
 ARCHITECTURES = ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
 ARCHITECTURE_NAMES = {
     "instance_nn": "Instance Space NN",
@@ -81,46 +83,6 @@ class MILOutput(NamedTuple):
     returns: torch.Tensor  # (B,)
     rewards: torch.Tensor  # (B, T)
     hidden: torch.Tensor  # (B, T, k)
-
-
-def dropout_mask(like: torch.Tensor, p: float) -> torch.Tensor:
-    """Inverted-dropout mask shaped like `like`: 1 / (1 - p) with probability 1 - p, else 0.
-
-    Four 16-bit uniform draws are cut from each 64-bit word of numpy's SFC64 generator (p is
-    resolved to 1/65536), seeded by one draw from torch's generator so that `torch.manual_seed`
-    still fixes every mask. On CPU this is ~4x faster than `torch.randint` words and ~8x faster
-    than `bernoulli_`, and comparing straight into a float tensor avoids a slow scalar `where`:
-    dropout masks were the largest single cost of an ensemble training step
-    (bench/ensemble_speed.py)."""
-    n = like.numel()
-    seed = int(torch.randint(0, 2 ** 62, (1,)))
-    words = np.random.SFC64(seed).random_raw((n + 3) // 4)
-    uniform16 = torch.from_numpy(words.view(np.int16)[:n]).view(like.shape)
-    threshold = int(round(p * 65536)) - 32768
-    mask = torch.empty(like.shape, dtype=like.dtype)
-    torch.ge(uniform16, threshold, out=mask)  # written as 0/1 floats: no bool tensor, no where
-    return mask.mul_(1.0 / (1.0 - p))
-
-
-def member_dropout_mask(like: torch.Tensor, p: float, streams: list, bags: int, steps: list) -> torch.Tensor:
-    """`dropout_mask` for an ensemble's (K, B * T, F) activations, member k's from `streams[k]`.
-
-    streams: K numpy bit generators (e.g. `np.random.SFC64`), one per member, each advanced only
-    by its own member's draws; steps: each member's own longest bag T_k <= T in this batch. Member
-    k draws masks for its (B, T_k, F) instances only (the rest is padding, left unmasked), so that
-    its masks do not depend on the other members' bags: a member of a 10-member run trains as it
-    would alone."""
-    K, F = like.shape[0], like.shape[-1]
-    T = like.shape[1] // bags
-    threshold = int(round(p * 65536)) - 32768
-    padded = any(int(t) < T for t in steps)
-    mask = (torch.ones if padded else torch.empty)((K, bags, T, F), dtype=like.dtype)
-    for k, stream in enumerate(streams):
-        t_k = int(steps[k])
-        n = bags * t_k * F
-        uniform16 = torch.from_numpy(stream.random_raw((n + 3) // 4).view(np.int16)[:n]).view(bags, t_k, F)
-        torch.ge(uniform16, threshold, out=mask[k, :, :t_k])
-    return mask.view(like.shape).mul_(1.0 / (1.0 - p))
 
 
 class FastDropout(nn.Module):
