@@ -177,17 +177,23 @@ class MILEnsemble(nn.Module):
             x = x.unsqueeze(0).expand(K, *x.shape)
         if lengths.dim() == 1:
             lengths = lengths.unsqueeze(0).expand(K, -1)
-        _, B, T, d = x.shape
-        mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
         self._step_masks = None
         if self.training and self.dropout_masks is not None:
             # each member's own longest bag: its dropout masks cover only its own instances
-            self._step_masks = iter(self.dropout_masks.take(B, member_steps(lengths)))
+            self._step_masks = iter(self.dropout_masks.take(x.shape[1], member_steps(lengths)))
+        try:
+            return self._forward(x, lengths)
+        finally:
+            self._step_masks = None  # a step's masks are valid for this forward only
+
+    def _forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
+        """forward() of (K, B, T, d) instances and (K, B) lengths."""
+        K, B, T, d = x.shape
+        mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
         f = self._features(x.reshape(K, B * T, d))
         arch = self.config.architecture
         if arch == "instance_nn":
             rewards = self._head_out(f).view(K, B, T) * mask
-            self._step_masks = None
             return MILOutput(rewards.sum(-1), rewards, x.new_zeros(K, B, T, 0))
         hidden = self._lstm(f.view(K, B, T, -1))
         flat_hidden = hidden.reshape(K, B * T, -1)
@@ -195,7 +201,6 @@ class MILEnsemble(nn.Module):
             partial = self._head_out(flat_hidden).view(K, B, T)
             previous = torch.cat([partial.new_zeros(K, B, 1), partial[..., :-1]], dim=-1)
             rewards = (partial - previous) * mask
-            self._step_masks = None
             last = (lengths - 1).clamp(min=0)
             returns = partial.gather(-1, last[..., None]).squeeze(-1) * (lengths > 0).to(x.dtype)
             return MILOutput(returns, rewards, hidden * mask[..., None])
@@ -203,7 +208,6 @@ class MILEnsemble(nn.Module):
             rewards = self._head_out(torch.cat([f, flat_hidden], dim=-1)).view(K, B, T) * mask
         else:  # instance_lstm
             rewards = self._head_out(flat_hidden).view(K, B, T) * mask
-        self._step_masks = None
         return MILOutput(rewards.sum(-1), rewards, hidden * mask[..., None])
 
 
