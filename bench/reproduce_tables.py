@@ -159,7 +159,7 @@ def saved_members0(path: Path, task: str, arch: str, repeats: list, cfg, n: int,
         raise SystemExit(f"{ckpt}: trained on {meta['data']['n']} bags of data seed "
                          f"{meta['data']['meta'].get('seed')}, not {n} of data seed {data_seed}")
     ignore = ("seed", "threads", "members")
-    theirs = {k: v for k, v in meta["train_config"].items() if k not in ignore}
+    theirs = {k: v for k, v in with_defaults(meta["train_config"]).items() if k not in ignore}
     ours = {k: v for k, v in cfg.to_dict().items() if k not in ignore}
     if theirs != ours:
         diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
@@ -326,6 +326,14 @@ def report_all(results: list, tasks: tuple, archs: tuple) -> None:
     report(singles, tasks, archs)
 
 
+def with_defaults(config: dict) -> dict:
+    """A saved training config with the settings added since it was saved at their defaults (the
+    value those runs had: a setting is added with a default that keeps the old behaviour)."""
+    from nmrm_ros.mil.training import TrainConfig
+
+    return dict(TrainConfig().to_dict(), **config)
+
+
 def merge_runs(paths: list) -> list:
     """The runs of several --json files as one table (e.g. repeats 1, 3, 8, 9 and 0, 2, 4-7):
     refused if a (task, architecture, repeat) appears twice or the training configs differ."""
@@ -336,7 +344,7 @@ def merge_runs(paths: list) -> list:
             if key in seen:
                 raise SystemExit(f"{path}: {key} is in an earlier file too")
             seen.add(key)
-            config = {k: v for k, v in run["config"].items() if k not in ("seed", "threads")}
+            config = {k: v for k, v in with_defaults(run["config"]).items() if k not in ("seed", "threads")}
             first = configs.setdefault(key[:2], (path, config))
             if first[1] != config:
                 raise SystemExit(f"{path}: {key[:2]} was trained with other settings than in {first[0]}")

@@ -104,6 +104,14 @@ class MILEnsemble(nn.Module):
         self.input_shift[index].copy_(state["input_shift"])
         self.input_scale[index].copy_(state["input_scale"])
 
+    def hidden_layers(self, part: str) -> list:
+        """Names of the FC layers of `part` ("feature_extractor" or "head") that a ReLU follows."""
+        if part == "feature_extractor":
+            return list(self._fe)
+        if part == "head":
+            return list(self._head[:-1])
+        raise ValueError(f"unknown part {part!r}: use 'feature_extractor' or 'head'")
+
     def seed_dropout(self, seeds: list) -> None:
         """Give member k its own dropout stream, seeded by `seeds[k]` (training does this)."""
         if len(seeds) != self.members:

@@ -72,9 +72,10 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     splits = retrain_splits(len(ds), members, seed)
     ens, start = _warm_start(init, ds.task, config, members)
     seeds = [seed + m for m in range(members)]
-    if ens is None:
+    fresh = ens is None
+    if fresh:
         ens = init_ensemble(config, seeds)
-    result = train_ensemble(ens, ds, splits, cfg, seeds=seeds, progress=False)
+    result = train_ensemble(ens, ds, splits, cfg, seeds=seeds, progress=False, fresh=fresh)
     val = splits[0][1]
     member_val = [evaluate(ens.member(m), ds.subset(val))["return_mse"] for m in range(members)]
     serving = int(np.argmin(member_val))

@@ -64,6 +64,7 @@ class TrainConfig:
     min_lr_ratio: float = 0.0
     grad_clip: float = 0.0  # per-member gradient norm limit; 0 = off
     lstm_forget_bias: float = 0.0  # initial forget-gate bias (b_ih + b_hh) of every LSTM
+    relu_bias: float = 0.0  # > 0: initial bias of every FC layer followed by a ReLU (0: torch's default init)
     hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
     reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
@@ -212,6 +213,19 @@ def init_lstm_forget_bias(ens: MILEnsemble, value: float) -> None:
         ens.params["lstm__bias_hh_l0"][:, k:2 * k] = 0.0
 
 
+def init_relu_bias(ens: MILEnsemble, value: float) -> None:
+    """Set the bias of every FC layer that a ReLU follows (the feature extractor's, the head's
+    hidden ones) to `value` in every member, so that each unit starts active on most standardised
+    inputs. With torch's default init a narrow layer (the toy models' 2 units) can start, or
+    early in training end up, with a unit that is 0 on every instance: a dead ReLU gets no
+    gradient and the model stays on the Markovian plateau (bench/results/toy/)."""
+    names = [f"feature_extractor.{n}" for n in ens.hidden_layers("feature_extractor")]
+    names += [f"head.{n}" for n in ens.hidden_layers("head")]
+    with torch.no_grad():
+        for name in names:
+            ens.params[f"{name}.bias".replace(".", "__")].fill_(value)
+
+
 def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
     """Scale each member's gradient to norm <= max_norm; returns the norms before clipping (K,)."""
     grads = [p.grad for p in ens.parameters() if p.grad is not None]
@@ -238,7 +252,8 @@ def member_losses(out, returns: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
 
 def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
                    seeds: list | None = None, progress: bool = True,
-                   on_epoch=None, label_swap: list | None = None) -> EnsembleTrainResult:
+                   on_epoch=None, label_swap: list | None = None,
+                   fresh: bool = True) -> EnsembleTrainResult:
     """Train every member of `ens` in place on `ds`.
 
     splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
@@ -248,6 +263,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     entry (plus "seconds": wall time since the start); returning True stops the run. On return each member
     holds its best-validation weights. label_swap: K fractions of swapped labels, one per member
     (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
+    fresh: `ens` is newly initialised, so the config's initialisation (`lstm_forget_bias`,
+    `relu_bias`) is applied first; False for a warm start, whose trained weights are kept.
     """
     K = ens.members
     if len(splits) != K:
@@ -267,8 +284,10 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             ens.input_shift[m] = torch.as_tensor(shift, dtype=torch.float32)
             ens.input_scale[m] = torch.as_tensor(scale, dtype=torch.float32)
     ens.return_scale.fill_(float(cfg.return_scale))
-    if cfg.lstm_forget_bias:
+    if fresh and cfg.lstm_forget_bias:
         init_lstm_forget_bias(ens, cfg.lstm_forget_bias)
+    if fresh and cfg.relu_bias:
+        init_relu_bias(ens, cfg.relu_bias)
 
     bags = BagTensors(ds)
     train_idx = torch.as_tensor(np.stack([np.asarray(tr) for tr, _ in splits]), dtype=torch.int64)
