@@ -21,7 +21,10 @@ def _train(dataset, arch, n_bags, **overrides):
 
 @pytest.mark.parametrize("arch", ["instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm"])
 def test_toggle_switch_learnt(arch):
-    metrics, _ = _train("toggle_switch", arch, 1000, max_epochs=40, batch_size=16, lr=1e-2)
+    # 2000 bags: with the toy default relu_bias 1 the feature units start linear, and on 1000 bags
+    # the Instance Space NN stops (patience) before it has cut v off where the switch is off
+    # (return MSE 0.27; 0.016 on 2000 bags; torch's init: 0.0000 on both)
+    metrics, _ = _train("toggle_switch", arch, 2000, max_epochs=40, batch_size=16, lr=1e-2)
     # the return variance of toggle switch bags is ~1.6; a learnt model is far below it
     assert metrics["return_mse"] < 0.1, metrics
 
