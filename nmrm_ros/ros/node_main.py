@@ -146,6 +146,7 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
     use_discovery_profile()  # Fast DDS: re-announce every 0.25 s (see discovery.py)
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
+    executor = None
     code = 0
     stop = {"signal": None}
 
@@ -178,6 +179,16 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         # said "done" and never exited). Bound it, through interpreter exit: past the limit every
         # thread's stack is written to stderr and the process exits with code 1.
         faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+        if executor is not None:
+            # Stop the executor while the node's entities exist: it holds them "in use", and an
+            # executor dropped only when this function returns (after destroy_node and
+            # rclpy.shutdown) released them then, finishing their deferred destruction against a
+            # shut-down context; that hung until the limit above (a CI run: the agent, 30 s, in
+            # event_handler.__exit__ called from main after run_node had returned).
+            if node is not None:
+                executor.remove_node(node)
+            executor.shutdown(timeout_sec=5.0)
+            executor = None
         if node is not None:
             _flush_publishers(node)
             node.destroy_node()
