@@ -23,7 +23,7 @@ from reproduce_tables import load_dataset, parse_overrides
 from nmrm_ros.mil import load_train_config, model_config
 from nmrm_ros.mil.ensemble import init_ensemble
 from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
-from nmrm_ros.mil.training import init_relu_bias
+from nmrm_ros.mil.training import initialise
 
 
 def active_fractions(model, states: torch.Tensor) -> np.ndarray:
@@ -53,8 +53,7 @@ def main() -> None:
     config = model_config(args.arch, ds.task, ds.state_size, dropout=cfg.dropout, hidden_size=cfg.hidden_size)
     for m, r in enumerate(repeats):
         fresh = init_ensemble(config, [r])  # repeat r's initial weights, as training started
-        if cfg.relu_bias:
-            init_relu_bias(fresh, cfg.relu_bias)
+        initialise(fresh, cfg)
         trained = run.ensemble.member(m)
         fresh.input_shift.copy_(trained.input_shift[None])  # its training split's normalisation
         fresh.input_scale.copy_(trained.input_scale[None])

@@ -104,13 +104,11 @@ class MILEnsemble(nn.Module):
         self.input_shift[index].copy_(state["input_shift"])
         self.input_scale[index].copy_(state["input_scale"])
 
-    def hidden_layers(self, part: str) -> list:
-        """Names of the FC layers of `part` ("feature_extractor" or "head") that a ReLU follows."""
-        if part == "feature_extractor":
-            return list(self._fe)
-        if part == "head":
-            return list(self._head[:-1])
-        raise ValueError(f"unknown part {part!r}: use 'feature_extractor' or 'head'")
+    def relu_layers(self) -> list:
+        """Parameter-key prefixes ("feature_extractor__0", ...) of the FC layers a ReLU follows:
+        every feature-extractor layer and the head's hidden ones."""
+        return ([_key(f"feature_extractor.{n}") for n in self._fe]
+                + [_key(f"head.{n}") for n in self._head[:-1]])
 
     def seed_dropout(self, seeds: list) -> None:
         """Give member k its own dropout stream, seeded by `seeds[k]` (training does this)."""

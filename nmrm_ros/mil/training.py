@@ -219,11 +219,18 @@ def init_relu_bias(ens: MILEnsemble, value: float) -> None:
     inputs. With torch's default init a narrow layer (the toy models' 2 units) can start, or
     early in training end up, with a unit that is 0 on every instance: a dead ReLU gets no
     gradient and the model stays on the Markovian plateau (bench/results/toy/)."""
-    names = [f"feature_extractor.{n}" for n in ens.hidden_layers("feature_extractor")]
-    names += [f"head.{n}" for n in ens.hidden_layers("head")]
     with torch.no_grad():
-        for name in names:
-            ens.params[f"{name}.bias".replace(".", "__")].fill_(value)
+        for layer in ens.relu_layers():
+            ens.params[f"{layer}__bias"].fill_(value)
+
+
+def initialise(ens: MILEnsemble, cfg: TrainConfig) -> None:
+    """Apply the config's initialisation settings (`lstm_forget_bias`, `relu_bias`) to a freshly
+    initialised ensemble."""
+    if cfg.lstm_forget_bias:
+        init_lstm_forget_bias(ens, cfg.lstm_forget_bias)
+    if cfg.relu_bias:
+        init_relu_bias(ens, cfg.relu_bias)
 
 
 def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
@@ -263,8 +270,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     entry (plus "seconds": wall time since the start); returning True stops the run. On return each member
     holds its best-validation weights. label_swap: K fractions of swapped labels, one per member
     (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
-    fresh: `ens` is newly initialised, so the config's initialisation (`lstm_forget_bias`,
-    `relu_bias`) is applied first; False for a warm start, whose trained weights are kept.
+    fresh: `ens` is newly initialised, so `initialise(ens, cfg)` is applied first; False for a
+    warm start, whose trained weights are kept.
     """
     K = ens.members
     if len(splits) != K:
@@ -284,10 +291,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             ens.input_shift[m] = torch.as_tensor(shift, dtype=torch.float32)
             ens.input_scale[m] = torch.as_tensor(scale, dtype=torch.float32)
     ens.return_scale.fill_(float(cfg.return_scale))
-    if fresh and cfg.lstm_forget_bias:
-        init_lstm_forget_bias(ens, cfg.lstm_forget_bias)
-    if fresh and cfg.relu_bias:
-        init_relu_bias(ens, cfg.relu_bias)
+    if fresh:
+        initialise(ens, cfg)
 
     bags = BagTensors(ds)
     train_idx = torch.as_tensor(np.stack([np.asarray(tr) for tr, _ in splits]), dtype=torch.int64)
