@@ -435,6 +435,41 @@ def explain(
     typer.echo(f"{len(figures)} figures: {out / 'index.html'}")
 
 
+@app.command()
+def check(
+    checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
+    agent_episodes: int = typer.Option(150, help="episodes of the short agent run of the reward-hacking check"),
+    eval_episodes: int = typer.Option(50, help="greedy and random episodes compared"),
+    seed: int = typer.Option(0, help="agent seed (and of the check's episodes)"),
+    memory_only: bool = typer.Option(False, help="skip the agent run (the memory check only)"),
+) -> None:
+    """Is this model fit to train an agent on? The memory check (does the served state separate
+    what the oracle's hidden state separates) and the reward-hacking check (a short agent's
+    learnt vs oracle return). Run it before training an agent; exit code 1 if a check fails."""
+    from .mil import CheckpointError, load_checkpoint
+    from .rl.acceptance import hacking_check, memory_check
+    from .tasks import check_task
+
+    for name, value in (("--agent-episodes", agent_episodes), ("--eval-episodes", eval_episodes)):
+        if value < 1:
+            raise typer.BadParameter(f"{name} must be at least 1, got {value}")
+    try:
+        model, meta = load_checkpoint(checkpoint)
+    except CheckpointError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    task = meta["task"]
+    _bad_input(check_task, task)
+    typer.echo(f"checking {checkpoint} ({model.config.architecture} on {task})")
+    results = [memory_check(model, task, seed=12345 + seed)]
+    typer.echo(results[-1].summary())
+    if not memory_only:
+        results.append(hacking_check(checkpoint, task, episodes=agent_episodes,
+                                     eval_episodes=eval_episodes, seed=seed))
+        typer.echo(results[-1].summary())
+    if not all(r.passed for r in results):
+        raise typer.Exit(1)
+
+
 @app.command("discovery-server")
 def discovery_server(
     server_id: int = typer.Option(0, "--id", help="server id (its position in ROS_DISCOVERY_SERVER)"),

@@ -155,7 +155,7 @@ def test_reward_model_swaps_a_new_checkpoint_only_at_the_next_episode(ros_domain
         ep0, ep1 = _states(0, 9), _states(1, 9)
         first = driver.play(0, ep0, range(5))
         ok, reason = driver.set_checkpoint("reward_model", c)
-        assert not ok and "hidden state has size 3" in reason, reason
+        assert not ok and "hidden state has size 6" in reason, reason
         ok, reason = driver.set_checkpoint("reward_model", tmp_path / "missing")
         assert not ok and "checkpoint file missing" in reason, reason
         assert driver.set_checkpoint("reward_model", b) == (True, "")

@@ -14,6 +14,7 @@ from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, bui
 from nmrm_ros.mil.data import split_indices
 from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
 from nmrm_ros.mil.pipeline import member_splits, train_ensemble_and_evaluate
+from nmrm_ros.mil.served_state import served_states
 from nmrm_ros.mil.training import train_ensemble
 
 
@@ -84,18 +85,20 @@ def test_ensemble_checkpoint_and_online_step(tmp_path):
     assert isinstance(loaded, MILEnsemble) and loaded.members == 4 and int(loaded.serving_member) == serving
     for a, b in zip(run.ensemble.state_dict().values(), loaded.state_dict().values()):
         assert torch.equal(a, b)
-    # online: the members' mean reward, their spread, and the serving member's hidden state
+    # online: the members' mean reward, their spread, and the serving member's [h', c']
     states = ds.states[0, : ds.lengths[0]]
     with torch.no_grad():
         out = loaded(torch.as_tensor(states)[None], torch.tensor([len(states)]))
     online = OnlineRewardModel(loaded)
     online.reset()
+    served = served_states(loaded, states[None])[0]
     for t in range(len(states)):
         r, h = online.step(states[t])
         members = out.rewards[:, 0, t].double().numpy()
         assert r == pytest.approx(members.mean(), abs=1e-5)
         assert online.reward_std == pytest.approx(members.std(), abs=1e-5)
-        np.testing.assert_allclose(h, out.hidden[serving, 0, t].numpy(), atol=1e-6)
+        np.testing.assert_allclose(h[:2], out.hidden[serving, 0, t].numpy(), atol=1e-6)
+        np.testing.assert_allclose(h, served[t], atol=1e-6)
     returns = out.returns[:, 0].double().numpy()
     assert online.return_std == pytest.approx(returns.std(), abs=1e-4)
 

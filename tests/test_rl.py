@@ -55,14 +55,17 @@ def test_model_wrapper_serves_the_online_model_in_figure_2_order(checkpoints):
     plain = EpisodeSeeds(make_env("key"), 7)
     states = [plain.reset()[0]] + [plain.step(a)[0] for a in actions]
     states = np.array(states)                                   # s_0..s_100
-    rewards, hidden = batched_reference(model, states)          # r'_t, h'_{t+1} for t = 0..100
+    rewards, hidden = batched_reference(model, states)          # r'_t, [h'_{t+1}, c'_{t+1}] for t = 0..100
 
     env = RewardModelWrapper(EpisodeSeeds(make_env("key"), 7), checkpoints["key"], task="key")
-    assert env.observation_space.shape == (4,)
+    assert env.observation_space.shape == (6,)
     obs, r, infos = rollout(env, actions, seed=7)
-    assert obs.shape == (101, 4)
+    assert obs.shape == (101, 6)
     np.testing.assert_array_equal(obs[:, :2], states)
-    np.testing.assert_allclose(obs[:, 2:], hidden, atol=1e-5)   # [s_t, h'_{t+1}]
+    np.testing.assert_allclose(obs[:, 2:], hidden, atol=1e-5)   # [s_t, h'_{t+1}, c'_{t+1}]
+    only_h = RewardModelWrapper(EpisodeSeeds(make_env("key"), 7), checkpoints["key"], task="key", served="h")
+    assert only_h.observation_space.shape == (4,)
+    np.testing.assert_allclose(rollout(only_h, actions, seed=7)[0][:, 2:], hidden[:, :2], atol=1e-5)
     np.testing.assert_allclose(r, rewards[:100], atol=1e-5)     # transition t gets r'_t
     labels = make_oracle("key").label(states[None, :100])
     np.testing.assert_array_equal([i["oracle_reward"] for i in infos], labels.rewards[0])
@@ -101,11 +104,11 @@ def test_wrappers_work_in_sb3_vector_envs(checkpoints):
     vec = DummyVecEnv([lambda i=i: make_reward_env("key", "model", checkpoints["key"], seed=100 * i)
                        for i in range(3)])
     obs = vec.reset()
-    assert obs.shape == (3, 4)
+    assert obs.shape == (3, 6)  # [s (2), h' (2), c' (2)]
     for _ in range(100):
         obs, rewards, dones, infos = vec.step(np.array([4, 1, 0]))
     assert dones.all() and all("oracle_return" in i and "terminal_observation" in i for i in infos)
-    assert obs.shape == (3, 4)
+    assert obs.shape == (3, 6)
 
 
 def test_make_reward_env_refuses_bad_kinds(checkpoints):

@@ -1,8 +1,9 @@
 """What a model and the oracle compute along given trajectories, step by step.
 
-model_traces(model, states) -> rewards (N, T), hidden (N, T, k): the batched forward of a
+model_traces(model, states) -> rewards (N, T), hidden (N, T, 2k): the batched forward of a
 `MILRewardModel` or `MILEnsemble` (an ensemble: the members' mean reward, the serving member's
-hidden state h'_{t+1}, as the reward_model node publishes them).
+served state [h'_{t+1}, c'_{t+1}], as the reward_model node publishes them;
+`nmrm_ros.mil.served_state`).
 oracle_traces(task, states) -> rewards (N, T), hidden (N, T, k_oracle): the ground truth.
 """
 
@@ -12,12 +13,14 @@ import numpy as np
 import torch
 
 from ..mil.ensemble import MILEnsemble
+from ..mil.served_state import served_states
 from ..oracles import make_oracle
 
 
 def model_traces(model, states: np.ndarray, lengths: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """states (N, T, d) (or (T, d) for one trajectory) -> rewards (N, T), hidden (N, T, k)."""
+    """states (N, T, d) (or (T, d) for one trajectory) -> rewards (N, T), served states
+    (N, T, 2k): [h', c'] per step."""
     states = np.asarray(states, np.float32)
     single = states.ndim == 2
     x = torch.as_tensor(states[None] if single else states)
@@ -25,9 +28,10 @@ def model_traces(model, states: np.ndarray, lengths: np.ndarray | None = None
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
     with torch.no_grad():
         out = model.eval()(x, lens)
-    rewards, hidden = out.rewards.double().numpy(), out.hidden.double().numpy()
+    rewards = out.rewards.double().numpy()
     if isinstance(model, MILEnsemble):
-        rewards, hidden = rewards.mean(0), hidden[int(model.serving_member)]
+        rewards = rewards.mean(0)
+    hidden = served_states(model, x.numpy(), lens.numpy())
     return (rewards[0], hidden[0]) if single else (rewards, hidden)
 
 

@@ -20,6 +20,7 @@ from torch import nn
 
 from .ensemble import MILEnsemble
 from .models import MILRewardModel
+from .served_state import DEFAULT_SERVED_STATE, check_served_state, served_size, served_states
 
 
 def _arrays(tensor: torch.Tensor, single: bool) -> np.ndarray:
@@ -36,14 +37,17 @@ def _stacked_linear(ens: MILEnsemble, prefix: str, names: list, single: bool) ->
 
 
 class OnlineRewardModel:
-    """`reset()` at each episode start, then `step(s_t) -> (r'_t, h'_{t+1})`.
+    """`reset()` at each episode start, then `step(s_t) -> (r'_t, served_{t+1})`.
 
-    `hidden` is the current h'_t (k,) of the serving member (k = 0 for the Instance Space NN);
+    `hidden` is the current served state (`served_size`,) of the serving member: [h'_t, c'_t]
+    (2k values) with served="hc" (default), h'_t (k) with served="h"; size 0 for the Instance
+    Space NN. `states_h`, `states_c` are every member's h', c' ((K, k), or (k,) for one);
     after a step, `rewards` (K,) are the members' r'_t, `reward_std` their standard deviation and
     `return_std` the standard deviation of the members' returns so far (0 for one model).
     """
 
-    def __init__(self, model: MILRewardModel | MILEnsemble) -> None:
+    def __init__(self, model: MILRewardModel | MILEnsemble, served: str = DEFAULT_SERVED_STATE) -> None:
+        self.served = check_served_state(served)
         ens = model if isinstance(model, MILEnsemble) else MILEnsemble.from_members([model])
         ens = ens.eval()
         cfg = ens.config
@@ -61,7 +65,8 @@ class OnlineRewardModel:
         self.fe = _stacked_linear(ens, "feature_extractor", ens._fe, single)
         self.head = _stacked_linear(ens, "head", ens._head, single)
         self.uses_lstm = ens.uses_lstm
-        self.k = ens.hidden_size
+        self.k = ens.hidden_size  # the LSTM's hidden size (0: no LSTM)
+        self.served_size = served_size(self.k, served)
         if self.uses_lstm:
             p = {n: _arrays(v, single) for n, v in ens.params.items()}
             self.w_ih = p["lstm__weight_ih_l0"]  # (K, 4k, F)
@@ -76,7 +81,7 @@ class OnlineRewardModel:
         if self.uses_lstm:
             self.states_h = self.h0.copy()
             self.states_c = self.c0.copy()
-            self.hidden = self.states_h if K == 1 else self.states_h[self.serving]
+            self._serve()
         else:
             self.hidden = np.zeros(0)
         shape = () if K == 1 else (K,)
@@ -86,6 +91,15 @@ class OnlineRewardModel:
         self.reward_std = 0.0
         self.return_std = 0.0
         self.t = 0
+
+    def _serve(self) -> None:
+        """Set `hidden` from the serving member's recurrent state."""
+        h = self.states_h if self.members == 1 else self.states_h[self.serving]
+        if self.served == "h":
+            self.hidden = h
+            return
+        c = self.states_c if self.members == 1 else self.states_c[self.serving]
+        self.hidden = np.concatenate([h, c])
 
     @staticmethod
     def _apply(w: np.ndarray, b: np.ndarray | None, z: np.ndarray) -> np.ndarray:
@@ -111,8 +125,8 @@ class OnlineRewardModel:
         return y * self.return_scale
 
     def step(self, state: np.ndarray) -> tuple[float, np.ndarray]:
-        """Consume instance s_t (d,); return (r'_t (members' mean), h'_{t+1} (k,) of the serving
-        member)."""
+        """Consume instance s_t (d,); return (r'_t (members' mean), the served state after it
+        (`served_size`,) of the serving member)."""
         x = np.asarray(state, dtype=np.float64).reshape(-1)
         if x.shape[0] != self.input_size:
             raise ValueError(f"expected a state of size {self.input_size}, got {x.shape[0]}")
@@ -131,7 +145,7 @@ class OnlineRewardModel:
             o = 1.0 / (1.0 + np.exp(-gates[..., 3 * k:]))
             self.states_c = fg * self.states_c + i * g
             self.states_h = o * np.tanh(self.states_c)
-            self.hidden = self.states_h if self.members == 1 else self.states_h[self.serving]
+            self._serve()
             if self.architecture == "embedding_lstm":
                 partial = self._out(self.states_h)
                 rewards = partial - self.previous_partial
@@ -149,9 +163,11 @@ class OnlineRewardModel:
         return float(rewards.mean()), self.hidden.copy()
 
 
-def batched_reference(model: MILRewardModel, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rewards (L,) and hidden states (L, k) of one trajectory (L, d) from the batched forward."""
+def batched_reference(model: MILRewardModel, states: np.ndarray, served: str = DEFAULT_SERVED_STATE
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Rewards (L,) and served states (L, served_size) of one trajectory (L, d) from the batched
+    forward (`served_states`)."""
     with torch.no_grad():
         x = torch.as_tensor(np.asarray(states, np.float32))[None]
         out = model.eval()(x, torch.tensor([x.shape[1]]))
-    return out.rewards[0].double().numpy(), out.hidden[0].double().numpy()
+    return out.rewards[0].double().numpy(), served_states(model, x.numpy(), kind=served)[0]

@@ -10,8 +10,15 @@ trainer for one model.
 
 Unlike the paper (one bag per step), bags are trained in padded mini-batches; the loss is computed
 on returns divided by `return_scale` (Lunar Lander: 100), as the paper scaled its targets.
-Learning-rate schedule (global): linear warm-up over `warmup_epochs`, then constant or a cosine
-decay to `lr * min_lr_ratio` at `max_epochs`. `grad_clip` > 0 clips each member's gradient norm.
+Learning-rate schedule: linear warm-up over `warmup_epochs`, then
+- constant, or a cosine decay to `lr * min_lr_ratio` at `max_epochs` (both global);
+- plateau: stop on convergence, not at a cap. Each member keeps its own learning-rate factor
+  (from 1): after `plateau_patience` epochs without a new best validation return MSE it is
+  multiplied by `plateau_factor`, and the member is done once the factor is below
+  `min_lr_ratio` (converged) or after `patience` epochs without a new best; the run ends when
+  every member is done (`max_epochs` is only a safety limit). A member's factor scales its Adam
+  update (Adam's step is proportional to lr, weight decay included), so each member still trains
+  exactly as it would alone; a done member is frozen. `grad_clip` > 0 clips each member's gradient norm.
 `label_swap` = p > 0 trains on noisy labels (paper Sec. 5.2): a fraction p of each member's
 training labels, and of its validation labels, are swapped between trajectories
 (`nmrm_ros.datasets.label_noise`; seeded by the member's seed); the test split stays clean.
@@ -43,6 +50,7 @@ from .ensemble import MILEnsemble
 from .models import MILRewardModel
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
+SCHEDULES = ("constant", "cosine", "plateau")
 
 
 @dataclass
@@ -59,7 +67,7 @@ class TrainConfig:
     normalisation: str = "standard"
     seed: int = 0
     threads: int = 1
-    schedule: str = "constant"  # constant | cosine
+    schedule: str = "constant"  # constant | cosine | plateau
     warmup_epochs: int = 0
     min_lr_ratio: float = 0.0
     grad_clip: float = 0.0  # per-member gradient norm limit; 0 = off
@@ -69,6 +77,8 @@ class TrainConfig:
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
     reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
     members: int = 1  # models `nmrm train` trains as one ensemble (shared split) unless --ensemble is given
+    plateau_patience: int = 10  # schedule plateau: epochs without a new best before the lr is cut
+    plateau_factor: float = 0.5  # schedule plateau: the cut
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -79,9 +89,9 @@ class TrainConfig:
             progress = min(max(epoch - self.warmup_epochs, 0.0) / span, 1.0)
             low = self.lr * self.min_lr_ratio
             return low + 0.5 * (self.lr - low) * (1.0 + math.cos(math.pi * progress))
-        if self.schedule != "constant":
-            raise ValueError(f"unknown schedule {self.schedule!r}: use 'constant' or 'cosine'")
-        return self.lr
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"unknown schedule {self.schedule!r}: use one of {', '.join(SCHEDULES)}")
+        return self.lr  # constant; plateau: each member's factor is applied by the trainer
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -316,6 +326,10 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     best_epoch = np.zeros(K, dtype=int)
     best_state = [ens.member_state(m) for m in range(K)]
     history = []
+    plateau = cfg.schedule == "plateau"
+    factors = torch.ones(K, dtype=torch.float64)  # plateau: each member's lr factor (0: done)
+    since_cut = np.zeros(K, dtype=int)  # plateau: epochs since the last new best or cut
+    params = list(ens.parameters())
     start = time.perf_counter()
     bar = _progress(cfg.max_epochs, progress)
     epoch = 0
@@ -335,15 +349,22 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             member_loss.sum().backward()
             if cfg.grad_clip > 0:
                 clip_member_grad_norms(ens, cfg.grad_clip)
-            optimiser.step()
+            if plateau and bool((factors != 1).any()):
+                scaled_step(optimiser, params, factors)
+            else:
+                optimiser.step()
             losses += member_loss.detach()
         val_mse = return_mse(ens, bags, index=val_idx, label_index=val_labels)
         history.append({"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist(),
                         "val_return_mse": val_mse.tolist(), "lr": optimiser.param_groups[0]["lr"]})
         stop = on_epoch is not None and on_epoch(dict(history[-1], seconds=time.perf_counter() - start))
-        for m in np.flatnonzero(val_mse < best_mse):
+        improved = np.flatnonzero(val_mse < best_mse)
+        for m in improved:
             best_mse[m], best_epoch[m] = val_mse[m], epoch
             best_state[m] = ens.member_state(int(m))
+        if plateau:
+            _plateau_update(factors, since_cut, improved, epoch - best_epoch, cfg)
+            history[-1]["lr_factor"] = factors.tolist()  # each member's, for the next epoch
         if bar is not None:
             bar.update(1)
             if K == 1:
@@ -351,16 +372,43 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             else:
                 bar.set_postfix(val_mse_median=f"{np.median(val_mse):.4f}",
                                 worst_member_best=f"{best_mse.max():.4f}")
-        if stop or np.all(epoch - best_epoch >= cfg.patience):
+        if stop or np.all(epoch - best_epoch >= cfg.patience) or (plateau and not bool(factors.any())):
             break
     if bar is not None:
         bar.close()
     for m in range(K):
         ens.load_member_state(m, best_state[m])
     ens.eval()
-    still_improving = [bool(epoch - b < cfg.patience) for b in best_epoch]
+    # at the epoch limit with a new best within the patience (plateau: not yet converged)
+    still_improving = [bool(epoch - b < cfg.patience and (not plateau or factors[m] > 0))
+                       for m, b in enumerate(best_epoch)]
     return EnsembleTrainResult(best_epoch.tolist(), best_mse.tolist(), still_improving, epoch,
                                time.perf_counter() - start, history)
+
+
+def scaled_step(optimiser: torch.optim.Optimizer, params: list, factors: torch.Tensor) -> None:
+    """An optimiser step whose update of member m is scaled by factors[m] (K,) (0: unchanged).
+    Exact for Adam: its update is proportional to the learning rate."""
+    before = [p.detach().clone() for p in params]
+    optimiser.step()
+    with torch.no_grad():
+        for p, old in zip(params, before):
+            f = factors.to(p.dtype).view(-1, *([1] * (p.dim() - 1)))
+            p.copy_(old + (p - old) * f)
+
+
+def _plateau_update(factors: torch.Tensor, since_cut: np.ndarray, improved: np.ndarray,
+                    since_best: np.ndarray, cfg: TrainConfig) -> None:
+    """After an epoch: cut the factor of each member `plateau_patience` epochs past its last new
+    best or cut; a member whose factor falls below `min_lr_ratio`, or that is `patience` epochs
+    past its best, is done (factor 0)."""
+    since_cut += 1
+    since_cut[improved] = 0
+    for m in np.flatnonzero((since_cut >= cfg.plateau_patience) & (factors.numpy() > 0)):
+        factors[m] *= cfg.plateau_factor
+        since_cut[m] = 0
+    factors[torch.as_tensor(factors.numpy() < max(cfg.min_lr_ratio, 1e-12))] = 0.0
+    factors[torch.as_tensor(since_best >= cfg.patience)] = 0.0
 
 
 def _progress(total: int, enabled: bool):

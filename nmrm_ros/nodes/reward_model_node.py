@@ -1,8 +1,11 @@
 """reward_model: serves a MIL reward model online, one observation at a time.
 
-For every EnvObservation (episode e, step t, state s_t) it publishes a RewardStep with
-h'_{t+1} (the hidden state after consuming s_t), the augmented state [s_t, h'_{t+1}] and the reward
-r'_t. The hidden state is reset to h'_0 at step 0 of each episode. The episode's final observation
+For every EnvObservation (episode e, step t, state s_t) it publishes a RewardStep with the
+served hidden state after consuming s_t, the augmented state [s_t, served] and the reward r'_t.
+What is served (`served_state`): "hc", the LSTM's full recurrent state [h'_{t+1}, c'_{t+1}]
+(2k values; the default, because the output gate can hide the model's memory from h' alone:
+`nmrm_ros.mil.served_state`), or "h", h'_{t+1} only (the paper's choice). The recurrent state is
+reset to (h'_0, c'_0) at step 0 of each episode. The episode's final observation
 (terminated/truncated) gets a RewardStep too, flagged the same way: its augmented state is the
 terminal state an RL agent bootstraps from; its reward belongs to no transition.
 
@@ -47,6 +50,8 @@ PARAMETERS = {
     "task": Param("", "task; mode oracle: required; mode model: checked against the checkpoint"),
     "source": Param("", "id published in RewardStep.source (default: checkpoint name or 'oracle'); "
                         "kept across live reloads"),
+    "served_state": Param("hc", "mode model: the hidden state served, hc ([h', c'] of the LSTM, 2k "
+                                "values) or h (h' only, k values, as the paper)"),
 }
 
 
@@ -68,6 +73,12 @@ class RewardModelNode(Node):
         elif mode == "model":
             if not p["checkpoint"]:
                 raise NodeError("mode model needs the parameter checkpoint")
+            from ..mil.served_state import SERVED_STATES
+
+            if p["served_state"] not in SERVED_STATES:
+                raise NodeError(f"served_state must be one of {', '.join(SERVED_STATES)}, "
+                                f"got {p['served_state']!r}")
+            self.served = p["served_state"]
             stepper, self.info, error = self._load(p["checkpoint"], p["task"] or None)
             if error:
                 raise NodeError(error)
@@ -100,7 +111,7 @@ class RewardModelNode(Node):
         if model.config.input_size != info.state_size:
             return None, None, (f"checkpoint takes states of size {model.config.input_size}, task "
                                 f"{meta['task']} has {info.state_size}")
-        return OnlineRewardModel(model), info, ""
+        return OnlineRewardModel(model, served=self.served), info, ""
 
     def _reload(self, value) -> str:
         """A new `checkpoint` set while running: load and check it now, serve it from the next

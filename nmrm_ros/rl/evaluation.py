@@ -71,6 +71,24 @@ def _reward_kind(model, task: str, checkpoint, meta: dict) -> tuple[str, object]
                      f"checkpoint of the reward model it was trained with")
 
 
+def served_state_of(model, task: str, checkpoint, meta: dict) -> str:
+    """What of the reward model's state a policy observes: agent.json's `served_state`, else (a
+    policy saved before it was recorded) inferred from its observation size: [h', c'] or h'."""
+    if meta.get("served_state"):
+        return meta["served_state"]
+    from ..mil import load_checkpoint
+    from ..tasks import task_info
+
+    k = load_checkpoint(checkpoint, task=task)[0].hidden_size
+    extra = model.observation_space.shape[0] - task_info(task).state_size
+    if extra == 2 * k:
+        return "hc"
+    if extra == k:
+        return "h"
+    raise ValueError(f"the policy observes {extra} values beyond the state; the reward model serves "
+                     f"{2 * k} ([h', c']) or {k} (h' only)")
+
+
 def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, episodes: int = 50,
                    seed: int = EVAL_SEED, reward: str | None = None, env=None) -> EvaluationResult:
     """Run the greedy policy (`policy`: a .zip path or an SB3 model) for `episodes` episodes with
@@ -91,7 +109,9 @@ def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, epis
     if reward is None:
         reward, checkpoint = _reward_kind(model, task, checkpoint, meta)
     if env is None:
-        env = make_reward_env(task, reward, checkpoint if reward == "model" else None, seed=seed)
+        served = served_state_of(model, task, checkpoint, meta) if reward == "model" else "hc"
+        env = make_reward_env(task, reward, checkpoint if reward == "model" else None, seed=seed,
+                              served=served)
     if env.observation_space.shape != model.observation_space.shape:
         raise ValueError(f"the policy observes {model.observation_space.shape}, the {reward} env gives "
                          f"{env.observation_space.shape}")

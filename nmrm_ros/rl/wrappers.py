@@ -109,12 +109,14 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
 
 
 class RewardModelWrapper(NonMarkovianRewardWrapper):
-    """Observation [s_t, h'_{t+1}] and reward r'_t from a trained MIL model, stepped online.
+    """Observation [s_t, served_{t+1}] and reward r'_t from a trained MIL model, stepped online.
 
-    model: a `MILRewardModel` or a checkpoint path (its task must be the env's).
+    model: a `MILRewardModel` or a checkpoint path (its task must be the env's); served: what of
+    the LSTM's state is observed, "hc" ([h', c'], default) or "h" (h' only, the paper's choice;
+    `nmrm_ros.mil.served_state`).
     """
 
-    def __init__(self, env: gym.Env, model, task: str | None = None) -> None:
+    def __init__(self, env: gym.Env, model, task: str | None = None, served: str = "hc") -> None:
         from ..mil import OnlineRewardModel, load_checkpoint
 
         if isinstance(model, (str, Path)):
@@ -122,11 +124,11 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
             task = task or meta["task"]
         if task is None:
             raise ValueError("RewardModelWrapper needs the task (for the oracle's judgement)")
-        online = OnlineRewardModel(model)
+        online = OnlineRewardModel(model, served=served)
         if online.input_size != env.observation_space.shape[0]:
             raise ValueError(f"the model takes states of size {online.input_size}, the env gives "
                              f"{env.observation_space.shape[0]}")
-        super().__init__(env, online, task, augment=True, hidden_size=online.k)
+        super().__init__(env, online, task, augment=True, hidden_size=online.served_size)
 
 
 class OracleRewardWrapper(NonMarkovianRewardWrapper):
@@ -140,10 +142,11 @@ class OracleRewardWrapper(NonMarkovianRewardWrapper):
 
 
 def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None,
-                    seed: int = 0, continuous: bool = False) -> gym.Env:
+                    seed: int = 0, continuous: bool = False, served: str = "hc") -> gym.Env:
     """A task env with episode seeds `seed + e` and the reward of `reward` (one of REWARD_KINDS).
 
-    reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`).
+    reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`); `served`: what of the
+    model's recurrent state the agent observes ("hc" or "h", `RewardModelWrapper`).
     """
     from ..tasks import make_env
 
@@ -153,7 +156,7 @@ def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None
     if reward == "model":
         if checkpoint is None:
             raise ValueError("reward 'model' needs a checkpoint")
-        return RewardModelWrapper(env, checkpoint, task=task)
+        return RewardModelWrapper(env, checkpoint, task=task, served=served)
     if checkpoint is not None:
         raise ValueError(f"reward {reward!r} takes no checkpoint")
     return OracleRewardWrapper(env, task, hidden=reward == "oracle")

@@ -1,0 +1,78 @@
+"""What a reward model serves to the agent as its hidden state: the LSTM's memory.
+
+The paper augments the agent's state with the LSTM's output h'_{t+1} (Sec. 3.3, Fig. 2:
+`[s_t, h'_{t+1}]`). An LSTM's memory is its *pair* (h'_{t+1}, c'_{t+1}): h' = o * tanh(c') is
+what the output gate lets through, and a model may keep what it needs in c' while o hides it
+until the reward needs it. Measured on a Charger CSC model (issue 34): while the agent charges,
+h' stays flat (h'[0] ~ -0.71, h'[1] ~ 0.00 for 40 steps) and c'[1] counts the charge; an agent
+observing h' alone cannot know when it is charged. So by default (`"hc"`) we serve the full
+recurrent state, 2k values:
+
+    served_{t+1} = [h'_{t+1}, c'_{t+1}]        (k = the LSTM's hidden size)
+
+With it the augmented state [s_t, served_{t+1}] determines every future reward the model pays,
+which is what makes the agent's problem Markovian. `"h"` serves h'_{t+1} only (the paper's
+choice; kept for comparisons and for agents trained before this change). The Instance Space NN
+has no recurrent state: it serves nothing (size 0).
+
+`served_states(model, states)` computes the served states of whole trajectories from the batched
+forward (h' from the model, c' by the LSTM's cell recursion on those h'); the online stepper
+(`OnlineRewardModel`) computes the same step by step; tests check they agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+SERVED_STATES = ("hc", "h")
+DEFAULT_SERVED_STATE = "hc"
+
+
+def check_served_state(kind: str) -> str:
+    """`kind` if it is one of SERVED_STATES, else a ValueError naming the choices."""
+    if kind not in SERVED_STATES:
+        raise ValueError(f"unknown served state {kind!r}; use one of {', '.join(SERVED_STATES)} "
+                         f"(hc: the LSTM's [h', c'], h: h' only, as the paper)")
+    return kind
+
+
+def served_size(hidden_size: int, kind: str = DEFAULT_SERVED_STATE) -> int:
+    """Size of the served state of a model with LSTM hidden size `hidden_size` (0: no LSTM)."""
+    return 2 * hidden_size if check_served_state(kind) == "hc" else hidden_size
+
+
+@torch.no_grad()
+def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
+                  kind: str = DEFAULT_SERVED_STATE) -> np.ndarray:
+    """Served states (N, T, served_size) of trajectories `states` (N, T, d) float (zero beyond
+    each length). `model`: a `MILRewardModel` or a `MILEnsemble` (its serving member's state)."""
+    from .ensemble import MILEnsemble
+
+    check_served_state(kind)
+    if isinstance(model, MILEnsemble):
+        model = model.member(int(model.serving_member))
+    model = model.eval()
+    x = torch.as_tensor(np.asarray(states, np.float32))
+    n, t = x.shape[:2]
+    lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
+    if not model.uses_lstm:
+        return np.zeros((n, t, 0))
+    h = model(x, lens).hidden.double()  # (N, T, k) h'_{t+1}, zero beyond each length
+    if kind == "h":
+        return h.numpy()
+    k = model.hidden_size
+    f = model._features(x).double()
+    lstm = model.lstm
+    previous = torch.cat([model.h0.double().expand(n, 1, k), h[:, :-1]], dim=1)  # h'_t
+    gates = (f @ lstm.weight_ih_l0.double().T + lstm.bias_ih_l0.double()
+             + previous @ lstm.weight_hh_l0.double().T + lstm.bias_hh_l0.double())
+    i, fg = torch.sigmoid(gates[..., :k]), torch.sigmoid(gates[..., k:2 * k])
+    g = torch.tanh(gates[..., 2 * k:3 * k])
+    c = torch.zeros(n, t, k, dtype=torch.float64)
+    cell = model.c0.double().expand(n, k)
+    for step in range(t):
+        cell = fg[:, step] * cell + i[:, step] * g[:, step]
+        c[:, step] = cell
+    mask = (torch.arange(t)[None, :] < lens[:, None]).double()[..., None]
+    return torch.cat([h, c * mask], dim=-1).numpy()

@@ -1,0 +1,178 @@
+"""Is a trained reward model fit to train an agent on? The checks of `nmrm check`.
+
+Low test MSEs are not enough (issue 34: a Charger model with a reward MSE of 0.0002 whose agents
+failed, and a Key model whose agent was paid 87 for episodes the oracle scores ~50). Two checks
+look at the model from the agent's side, on the model's task with its oracle:
+
+1. **Memory** (`memory_check`): does the served state separate what the oracle's hidden state
+   separates? From screened trajectories, take pairs of steps whose states are close (each
+   coordinate within `state_tol` standard deviations) but whose oracle hidden states differ (by
+   more than 10% of its standard deviation): an agent at those two steps observes
+   [s_t, served_{t+1}], so if the two served states are (almost) equal it cannot tell the two
+   situations apart, whatever rewards the model pays. A pair is *separated* when its served
+   states are further apart than both `separation_tol` of the median distance between the served
+   states of random pairs of steps and `min_distance` (0.01: a gate that shuts h' scales it
+   towards 0, and a difference of 1e-6 is none for an agent). Reported for the served state and
+   for h' alone.
+2. **Reward hacking** (`hacking_check`): a short agent run on the model's reward (the task's
+   algorithm, `episodes` episodes, seeded), then its greedy policy on new episodes: the learnt
+   return the model pays against the oracle's return of the same episodes, beside the same gap on
+   random-policy episodes. An agent finds the states where the model overpays; a gap far beyond
+   the model's error on random episodes means it learnt the model's mistake.
+
+A check passes when at least `min_separated` (90%) of the pairs are separated, and when the agent's
+mean gap |learnt - oracle| is within max(3 x the model's return RMSE on random-policy episodes, 5%
+of the oracle's return scale).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class MemoryCheck:
+    """pairs: close-state pairs whose oracle hidden states differ; separated: the fraction of them
+    the served state separates (h_only: with h' alone; None without an LSTM)."""
+
+    pairs: int
+    separated: float
+    h_only: float | None
+    min_separated: float = 0.9
+
+    @property
+    def passed(self) -> bool:
+        return self.pairs == 0 or self.separated >= self.min_separated
+
+    def summary(self) -> str:
+        if self.pairs == 0:
+            return "memory: no pairs of close states with different oracle hidden states (nothing to separate)"
+        h = "" if self.h_only is None else f" (h' alone: {self.h_only:.0%})"
+        verdict = "PASS" if self.passed else f"FAIL (below {self.min_separated:.0%})"
+        return (f"memory: the served state separates {self.separated:.0%} of {self.pairs} pairs of close "
+                f"states whose oracle hidden states differ{h}: {verdict}")
+
+
+@dataclass
+class HackingCheck:
+    """Mean learnt and oracle returns of the greedy agent's episodes and of random-policy ones."""
+
+    agent_learnt: float
+    agent_oracle: float
+    random_learnt: float
+    random_oracle: float
+    random_rmse: float
+    scale: float
+    episodes: int
+
+    @property
+    def gap(self) -> float:
+        return self.agent_learnt - self.agent_oracle
+
+    @property
+    def tolerance(self) -> float:
+        return max(3.0 * self.random_rmse, 0.05 * self.scale)
+
+    @property
+    def passed(self) -> bool:
+        return abs(self.gap) <= self.tolerance
+
+    def summary(self) -> str:
+        verdict = "PASS" if self.passed else "FAIL: the agent learnt where the model is wrong"
+        return (f"reward hacking: a short agent's greedy episodes are paid {self.agent_learnt:.2f} by the "
+                f"model, {self.agent_oracle:.2f} by the oracle (gap {self.gap:+.2f}, tolerance "
+                f"{self.tolerance:.2f}); random episodes {self.random_learnt:.2f} vs {self.random_oracle:.2f} "
+                f"(return RMSE {self.random_rmse:.2f}): {verdict}")
+
+
+def _close_pairs(states: np.ndarray, oracle: np.ndarray, state_tol: float, rows: int = 512):
+    """Index pairs (i, j), i < j, of steps with close states and different oracle hidden states."""
+    s = (states - states.mean(0)) / np.maximum(states.std(0), 1e-9)
+    h = (oracle - oracle.mean(0)) / np.maximum(oracle.std(0), 1e-9)
+    pairs = []
+    for start in range(0, len(s), rows):
+        block = slice(start, start + rows)
+        close = np.all(np.abs(s[block, None] - s[None]) <= state_tol, axis=-1)
+        differ = np.linalg.norm(h[block, None] - h[None], axis=-1) > 0.1
+        i, j = np.nonzero(close & differ)
+        i = i + start
+        keep = i < j
+        pairs.append(np.stack([i[keep], j[keep]], 1))
+    return np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
+
+
+def _separated(served: np.ndarray, pairs: np.ndarray, tol: float, min_distance: float, rng) -> float:
+    a, b = rng.integers(0, len(served), (2, 4000))
+    typical = np.median(np.linalg.norm(served[a] - served[b], axis=-1))
+    d = np.linalg.norm(served[pairs[:, 0]] - served[pairs[:, 1]], axis=-1)
+    return float(np.mean(d > max(tol * typical, min_distance)))
+
+
+def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, steps: int = 4000,
+                 state_tol: float = 0.05, separation_tol: float = 0.1,
+                 min_distance: float = 0.01) -> MemoryCheck:
+    """The memory check on `trajectories` screened trajectories of `task` (data seed `seed`),
+    `steps` steps drawn from them."""
+    from ..datasets import generate_screened
+    from ..interpret.traces import oracle_traces
+    from ..mil.served_state import served_states
+
+    ds = generate_screened(task, trajectories, seed=seed)
+    _, oracle = oracle_traces(task, ds.states)
+    real = np.argwhere(np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None])
+    rng = np.random.default_rng(seed)
+    pick = real[rng.choice(len(real), min(steps, len(real)), replace=False)]
+    states = ds.states[pick[:, 0], pick[:, 1]].astype(np.float64)
+    hidden = oracle[pick[:, 0], pick[:, 1]]
+    pairs = _close_pairs(states, hidden, state_tol)
+    served = served_states(model, ds.states, ds.lengths)
+    if served.shape[-1] == 0:  # no recurrent state: nothing is separated beyond the state itself
+        return MemoryCheck(len(pairs), 0.0, None)
+    served = served[pick[:, 0], pick[:, 1]]
+    k = served.shape[-1] // 2
+    if len(pairs) == 0:
+        return MemoryCheck(0, 1.0, 1.0)
+    return MemoryCheck(len(pairs), _separated(served, pairs, separation_tol, min_distance, rng),
+                       _separated(served[:, :k], pairs, separation_tol, min_distance, rng))
+
+
+def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray]:
+    """(learnt returns, oracle returns) of `episodes` episodes of `env` under `act`."""
+    learnt, oracle = [], []
+    obs, _ = env.reset(seed=seed)
+    while len(learnt) < episodes:
+        obs, _, terminated, truncated, info = env.step(act(obs))
+        if terminated or truncated:
+            learnt.append(info["learnt_return"])
+            oracle.append(info["oracle_return"])
+            obs, _ = env.reset()
+    return np.asarray(learnt), np.asarray(oracle)
+
+
+def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_episodes: int = 50,
+                  seed: int = 0) -> HackingCheck:
+    """The reward-hacking check: train an agent for `episodes` episodes on the checkpoint's reward
+    (agent seed `seed`), then compare learnt and oracle returns of its greedy episodes (and of
+    random ones) on `eval_episodes` new episodes."""
+    from .evaluation import EVAL_SEED
+    from .training import train_agent
+    from .wrappers import make_reward_env
+
+    run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False)
+    env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED)
+    agent_l, agent_o = _episodes(env, eval_episodes, EVAL_SEED,
+                                 lambda obs: run.model.predict(obs, deterministic=True)[0])
+    rng = np.random.default_rng(seed)
+    space = env.action_space
+    if hasattr(space, "n"):
+        act = lambda obs: int(rng.integers(space.n))  # noqa: E731
+    else:
+        act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
+    rand_l, rand_o = _episodes(env, eval_episodes, EVAL_SEED, act)
+    scale = max(np.abs(agent_o).mean(), np.abs(rand_o).mean(), np.std(rand_o), 1e-9)
+    return HackingCheck(float(agent_l.mean()), float(agent_o.mean()), float(rand_l.mean()),
+                        float(rand_o.mean()), float(np.sqrt(np.mean((rand_l - rand_o) ** 2))),
+                        float(scale), eval_episodes)

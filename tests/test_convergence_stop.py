@@ -1,0 +1,60 @@
+"""The plateau schedule (nmrm_ros.mil.training): training stops on convergence, not at an epoch
+cap, and each member of an ensemble keeps its own learning-rate factor, so it still trains exactly
+as it would alone."""
+
+import numpy as np
+import pytest
+import torch
+
+from nmrm_ros.datasets import make_toy_dataset
+from nmrm_ros.mil import load_train_config, model_config
+from nmrm_ros.mil.data import split_indices
+from nmrm_ros.mil.ensemble import init_ensemble
+from nmrm_ros.mil.training import scaled_step, train_ensemble
+
+
+def test_a_toy_run_stops_on_convergence_before_its_cap():
+    ds = make_toy_dataset("toggle_switch", 600, seed=0)
+    train, val, _ = split_indices(len(ds), 0)
+    cfg = load_train_config("toggle_switch", schedule="plateau", max_epochs=1000, plateau_patience=3,
+                            patience=1000, min_lr_ratio=0.05, plateau_factor=0.5)
+    ens = init_ensemble(model_config("csc_lstm", "toggle_switch", 2), [0])
+    result = train_ensemble(ens, ds, [(train, val)], cfg, progress=False)
+    factors = [h["lr_factor"][0] for h in result.history]
+    assert result.epochs_run < 200, result.epochs_run  # converged long before the cap
+    assert result.still_improving == [False]
+    assert factors[-1] == 0.0  # done: the factor fell below min_lr_ratio
+    cuts = sorted({f for f in factors if f > 0}, reverse=True)
+    assert cuts[:5] == pytest.approx([1.0, 0.5, 0.25, 0.125, 0.0625])  # halved at each plateau
+
+
+def test_scaled_step_scales_each_members_adam_update():
+    torch.manual_seed(0)
+    w = torch.nn.Parameter(torch.randn(3, 4, 2))
+    start = w.detach().clone()
+    opt = torch.optim.Adam([w], lr=1e-2)
+    (w ** 2).sum().backward()
+    reference = torch.optim.Adam([torch.nn.Parameter(start.clone())], lr=1e-2)
+    ref_param = reference.param_groups[0]["params"][0]
+    ref_param.grad = w.grad.clone()
+    reference.step()
+    scaled_step(opt, [w], torch.tensor([1.0, 0.5, 0.0], dtype=torch.float64))
+    torch.testing.assert_close(w[0], ref_param[0])
+    torch.testing.assert_close(w[1] - start[1], 0.5 * (ref_param[1] - start[1]))
+    torch.testing.assert_close(w[2], start[2])  # factor 0: frozen
+
+
+def test_each_member_of_a_plateau_ensemble_trains_as_it_would_alone():
+    ds = make_toy_dataset("push_switch", 400, seed=1)
+    splits = [split_indices(len(ds), s)[:2] for s in (0, 1)]
+    cfg = load_train_config("push_switch", schedule="plateau", max_epochs=40, plateau_patience=2,
+                            min_lr_ratio=0.01)
+    config = model_config("instance_lstm", "push_switch", 2)
+    both = init_ensemble(config, [0, 1])
+    together = train_ensemble(both, ds, splits, cfg, seeds=[0, 1], progress=False)
+    alone = init_ensemble(config, [1])
+    single = train_ensemble(alone, ds, splits[1:], cfg, seeds=[1], progress=False)
+    assert together.best_epochs[1] == single.best_epochs[0]
+    assert [h["lr_factor"][1] for h in together.history][:single.epochs_run] == \
+        [h["lr_factor"][0] for h in single.history]
+    np.testing.assert_allclose(together.best_val_return_mse[1], single.best_val_return_mse[0], rtol=1e-4)
