@@ -61,11 +61,11 @@ app.add_typer(dataset_app, name="dataset")
 @dataset_app.command("screen")
 def dataset_screen(
     task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
-    n: int = typer.Option(5000, help="trajectories to keep"),
-    seed: int = typer.Option(0, help="seed of the simulator and the policy"),
+    n: int = typer.Option(5000, min=1, help="trajectories to keep"),
+    seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
     out: Path = typer.Option(None, help="write the dataset here (.npz)"),
     key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
-    pool_size: int = typer.Option(None, help="lunar_lander: episodes in the pool (default 2n)"),
+    pool_size: int = typer.Option(None, min=1, help="lunar_lander: episodes in the pool (default 2n)"),
 ) -> None:
     """Generate a screened dataset (paper App. D.2) and print draws and time."""
     from tqdm import tqdm
@@ -91,9 +91,9 @@ def dataset_screen(
 @dataset_app.command("generate")
 def dataset_generate(
     task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
-    episodes: int = typer.Option(..., help="number of screened episodes to write"),
+    episodes: int = typer.Option(..., min=1, help="number of screened episodes to write"),
     out: Path = typer.Option(..., help="bag directory to create"),
-    seed: int = typer.Option(0, help="seed of the simulator and the policy"),
+    seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
     key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
 ) -> None:
     """Screened episodes written as a bag with the live graph's topics (observations, actions,
@@ -119,8 +119,8 @@ def dataset_generate(
 @dataset_app.command("toy")
 def dataset_toy(
     name: str = typer.Option(..., help="toggle_switch | push_switch | dial"),
-    n: int = typer.Option(5000, help="number of bags"),
-    seed: int = typer.Option(0),
+    n: int = typer.Option(5000, min=1, help="number of bags"),
+    seed: int = typer.Option(0, min=0),
     out: Path = typer.Option(None, help="write the dataset here (.npz)"),
 ) -> None:
     """Generate a toy MIL dataset (paper App. C)."""
@@ -135,11 +135,11 @@ def dataset_toy(
 @app.command()
 def demo(
     task: str = typer.Option("key", help="navigation task"),
-    live_episodes: int = typer.Option(30, help="episodes collected with the live graph"),
-    screened: int = typer.Option(1500, help="screened episodes generated in-process"),
-    epochs: int = typer.Option(100, help="max training epochs"),
-    agent_episodes: int = typer.Option(150, help="episodes of the DQN agent trained through the graph"),
-    seed: int = typer.Option(0, help="seed of data, split, weights and agent"),
+    live_episodes: int = typer.Option(30, min=1, help="episodes collected with the live graph"),
+    screened: int = typer.Option(1500, min=1, help="screened episodes generated in-process"),
+    epochs: int = typer.Option(100, min=1, help="max training epochs"),
+    agent_episodes: int = typer.Option(150, min=1, help="episodes of the DQN agent trained through the graph"),
+    seed: int = typer.Option(0, min=0, help="seed of data, split, weights and agent"),
     out: Path = typer.Option(Path("runs/demo"), help="output directory (replaced)"),
 ) -> None:
     """The main job, end to end on a small task (nmrm_ros/demo.py): collect episodes with the live
@@ -182,15 +182,15 @@ def launch(
 
 @app.command()
 def fleet(
-    robots: int = typer.Option(2, help="number of robots (namespaces /robot1 ... /robotN)"),
+    robots: int = typer.Option(2, min=1, help="number of robots (namespaces /robot1 ... /robotN)"),
     task: str = typer.Option("key", help="timer | moving | key | charger | lunar_lander"),
-    episodes: int = typer.Option(100, help="episodes per robot (the learner learns from robots x episodes)"),
+    episodes: int = typer.Option(100, min=1, help="episodes per robot (the learner learns from robots x episodes)"),
     mode: str = typer.Option("oracle", help="reward of every robot's reward_model: oracle | model"),
     checkpoint: Path = typer.Option(None, help="MIL checkpoint for mode model"),
-    seed: int = typer.Option(0, help="agent seed; robot i's episodes start from seed + i * 100000"),
+    seed: int = typer.Option(0, min=0, help="agent seed; robot i's episodes start from seed + i * 100000"),
     out: Path = typer.Option(Path("runs/fleet"), help="output: OUT/policy (the learner) and OUT/bag (all robots)"),
-    save_every: int = typer.Option(50, help="save the policy every this many fleet episodes"),
-    learning_starts: int = typer.Option(-1, help="random steps before learning (-1: config/rl.yaml)"),
+    save_every: int = typer.Option(50, min=1, help="save the policy every this many fleet episodes"),
+    learning_starts: int = typer.Option(-1, min=-1, help="random steps before learning (-1: config/rl.yaml)"),
     save_replay_buffer: bool = typer.Option(False, help="also save OUT/policy/replay_buffer.pkl"),
     grace: float = typer.Option(10.0, help="seconds between SIGINT and SIGTERM when stopping"),
 ) -> None:
@@ -273,7 +273,11 @@ def _load_or_generate(data: Path | None, task: str | None, n: int, seed: int):
     if data is not None:
         if not data.is_file():
             raise typer.BadParameter(f"no dataset file {data}")
-        return TrajectoryDataset.load(data), str(data)
+        try:
+            return TrajectoryDataset.load(data), str(data)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file: one line, not a traceback
+            raise typer.BadParameter(f"{data} is not a dataset .npz (from `nmrm dataset ...`): "
+                                     f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from None
     if task is None:
         raise typer.BadParameter("give --data FILE or --task")
     if task in TOY_DATASETS:
@@ -290,15 +294,15 @@ def train(
     labeller: str = typer.Option(None, help="with --bag: whose labels to use if several labelled"),
     arch: str = typer.Option("csc_lstm", help="instance_nn | embedding_lstm | instance_lstm | csc_lstm"),
     out: Path = typer.Option(Path("runs/model"), help="checkpoint path (writes OUT.pt and OUT.json)"),
-    n: int = typer.Option(5000, help="trajectories to generate (without --data)"),
-    data_seed: int = typer.Option(0, help="seed of the generated data"),
-    seed: int = typer.Option(0, help="seed of the weight initialisation and batch order"),
-    split_seed: int = typer.Option(0, help="seed of the 80/10/10 train/val/test split"),
-    epochs: int = typer.Option(None, help="override max_epochs"),
+    n: int = typer.Option(5000, min=1, help="trajectories to generate (without --data)"),
+    data_seed: int = typer.Option(0, min=0, help="seed of the generated data"),
+    seed: int = typer.Option(0, min=0, help="seed of the weight initialisation and batch order"),
+    split_seed: int = typer.Option(0, min=0, help="seed of the 80/10/10 train/val/test split"),
+    epochs: int = typer.Option(None, min=1, help="override max_epochs"),
     lr: float = typer.Option(None, help="override the learning rate"),
-    batch_size: int = typer.Option(None, help="override the batch size"),
+    batch_size: int = typer.Option(None, min=1, help="override the batch size"),
     config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)"),
-    ensemble: int = typer.Option(None, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1; "
+    ensemble: int = typer.Option(None, min=1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1; "
                                  "served as their mean reward); default: the task's `members` in the config"),
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
     label_swap: float = typer.Option(None, help="label noise: swap this fraction of the training and "
@@ -313,16 +317,21 @@ def train(
 
     if arch not in ARCHITECTURES:
         raise typer.BadParameter(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
+    if split_mode not in SPLIT_MODES:
+        raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
+    _require_writable(out.parent)
     if bag:
         ds, source = _load_bags(bag, task, labeller)
     else:
         ds, source = _load_or_generate(data, task, n, data_seed)
+    if len(ds) < 10:
+        raise typer.BadParameter(f"{len(ds)} trajectories cannot be split 80/10/10 into train, validation "
+                                 f"and test sets: give at least 10 (the paper: 5000)")
+    if len(ds) < 100:
+        typer.echo(f"warning: only {len(ds)} trajectories; the validation and test sets have about "
+                   f"{len(ds) // 10} each, so the figures below are noise", err=True)
     cfg = _bad_input(load_train_config, ds.task, config, max_epochs=epochs, lr=lr,
                      batch_size=batch_size, seed=seed, label_swap=label_swap, reward_l1=reward_l1)
-    if not 0.0 <= cfg.label_swap <= 1.0:
-        raise typer.BadParameter(f"--label-swap must be in [0, 1], got {cfg.label_swap}")
-    if cfg.reward_l1 < 0:
-        raise typer.BadParameter(f"--reward-l1 must be at least 0, got {cfg.reward_l1}")
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
@@ -418,9 +427,9 @@ def explain(
     out: Path = typer.Option(Path("runs/explain"), help="directory for the PNGs and index.html"),
     bag: Path = typer.Option(None, help="a recording: embeddings of its episodes and per-episode views"),
     task: str = typer.Option(None, help="task (default: the checkpoint's)"),
-    n: int = typer.Option(300, help="trajectories for the hidden-state embedding"),
-    seed: int = typer.Option(1, help="data seed of the generated trajectories (without --bag)"),
-    episodes: int = typer.Option(3, help="with --bag: how many per-episode views"),
+    n: int = typer.Option(300, min=1, help="trajectories for the hidden-state embedding"),
+    seed: int = typer.Option(1, min=0, help="data seed of the generated trajectories (without --bag)"),
+    episodes: int = typer.Option(3, min=0, help="with --bag: how many per-episode views"),
 ) -> None:
     """Pictures of what a model learnt: hidden-state embeddings, reward maps, probe trajectories
     and (with --bag) recorded episodes, in OUT/index.html."""
@@ -438,9 +447,9 @@ def explain(
 @app.command()
 def check(
     checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
-    agent_episodes: int = typer.Option(150, help="episodes of the short agent run of the reward-hacking check"),
-    eval_episodes: int = typer.Option(50, help="greedy and random episodes compared"),
-    seed: int = typer.Option(0, help="agent seed (and of the check's episodes)"),
+    agent_episodes: int = typer.Option(150, min=1, help="episodes of the short agent run of the reward-hacking check"),
+    eval_episodes: int = typer.Option(50, min=1, help="greedy and random episodes compared"),
+    seed: int = typer.Option(0, min=0, help="agent seed (and of the check's episodes)"),
     memory_only: bool = typer.Option(False, help="skip the agent run (the memory check only)"),
 ) -> None:
     """Is this model fit to train an agent on? The memory check (does the served state separate
@@ -450,9 +459,6 @@ def check(
     from .rl.acceptance import hacking_check, memory_check
     from .tasks import check_task
 
-    for name, value in (("--agent-episodes", agent_episodes), ("--eval-episodes", eval_episodes)):
-        if value < 1:
-            raise typer.BadParameter(f"{name} must be at least 1, got {value}")
     try:
         model, meta = load_checkpoint(checkpoint)
     except CheckpointError as exc:
@@ -474,7 +480,7 @@ def check(
 def discovery_server(
     server_id: int = typer.Option(0, "--id", help="server id (its position in ROS_DISCOVERY_SERVER)"),
     address: str = typer.Option("0.0.0.0", help="address to listen on"),
-    port: int = typer.Option(11811, help="UDP port"),
+    port: int = typer.Option(11811, min=1, help="UDP port"),
 ) -> None:
     """Run a Fast DDS Discovery Server (for networks without multicast); nodes then need
     ROS_DISCOVERY_SERVER=ADDRESS:PORT (README "Several machines"). Ctrl-C stops it."""
@@ -499,9 +505,9 @@ def rl_train(
     task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
     reward: str = typer.Option("model", help="model | oracle | oracle-no-hidden"),
     checkpoint: Path = typer.Option(None, help="MIL checkpoint (reward model), trained on TASK"),
-    episodes: int = typer.Option(None, help="training episodes (default: config/rl.yaml, 400 DQN / 800 SAC)"),
-    seed: int = typer.Option(0, help="seed of the agent (weights, exploration) and of the episodes"),
-    envs: int = typer.Option(1, help="environments stepped together (SB3 DummyVecEnv)"),
+    episodes: int = typer.Option(None, min=1, help="training episodes (default: config/rl.yaml, 400 DQN / 800 SAC)"),
+    seed: int = typer.Option(0, min=0, help="seed of the agent (weights, exploration) and of the episodes"),
+    envs: int = typer.Option(1, min=1, help="environments stepped together (SB3 DummyVecEnv)"),
     out: Path = typer.Option(Path("runs/agent"), help="output directory: policy.zip, curve.csv, curve.png"),
     config: Path = typer.Option(None, help="RL config YAML (default config/rl.yaml)"),
 ) -> None:
@@ -535,8 +541,8 @@ def rl_evaluate(
     policy: Path = typer.Option(..., help="policy.zip from `nmrm rl train` or the agent node"),
     task: str = typer.Option(..., help="the task the policy was trained on"),
     checkpoint: Path = typer.Option(None, help="the reward model it was trained with (default: agent.json)"),
-    episodes: int = typer.Option(50, help="evaluation episodes"),
-    seed: int = typer.Option(10**8, help="seed of the first evaluation episode"),
+    episodes: int = typer.Option(50, min=1, help="evaluation episodes"),
+    seed: int = typer.Option(10**8, min=0, help="seed of the first evaluation episode"),
 ) -> None:
     """Mean oracle return (± SEM) of the greedy policy, and of a random policy on the same episodes."""
     from .mil import CheckpointError
@@ -549,6 +555,19 @@ def rl_evaluate(
     except (CheckpointError, ValueError) as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(f"{task}, reward {result.reward}: {result.summary()}")
+
+
+def _require_writable(directory: Path) -> None:
+    """Create `directory` (with its parents) and check a file can be written there: a clean error
+    now, not a traceback after the work."""
+    import tempfile
+
+    try:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as exc:
+        raise typer.BadParameter(f"cannot write to {directory}: {exc.strerror or exc}") from None
 
 
 def _bad_input(fn, *args, **kwargs):

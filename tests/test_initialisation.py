@@ -51,7 +51,8 @@ def test_a_warm_start_keeps_its_trained_initial_biases():
     (the trainer node's retraining) keeps the weights it was given."""
     ds = make_toy_dataset("dial", 200, seed=0)
     train, val, _ = split_indices(len(ds), 0)
-    cfg = load_train_config("dial", lr=0.0, max_epochs=1, lstm_forget_bias=1.0, relu_bias=1.0)
+    cfg = load_train_config("dial", max_epochs=1, lstm_forget_bias=1.0, relu_bias=1.0)
+    cfg.lr = 0.0  # no update (a setting `load_train_config` refuses: set here on purpose)
     k = 2
     for fresh, forget, relu in ((True, 1.0, 1.0), (False, 5.0, 3.0)):
         ens = init_ensemble(model_config("csc_lstm", "dial", 2), [0])

@@ -220,7 +220,7 @@ def test_cli_train_and_evaluate(tmp_path, checkpoints):
     (["--task", "key", "--reward", "bogus"], "unknown reward kind 'bogus'"),
     (["--task", "key", "--reward", "model"], "needs --checkpoint"),
     (["--task", "nowhere", "--reward", "oracle"], "unknown task 'nowhere'"),
-    (["--task", "key", "--reward", "oracle", "--episodes", "0"], "--episodes must be at least 1"),
+    (["--task", "key", "--reward", "oracle", "--episodes", "0"], "Invalid value for '--episodes'"),
 ])
 def test_cli_train_errors(tmp_path, args, message):
     res = nmrm("train", *args, "--out", str(tmp_path / "x"))

@@ -90,8 +90,8 @@ def _nmrm(*args):
 
 @pytest.mark.parametrize("args,message", [
     (["--checkpoint", "/nonexistent/ckpt"], "checkpoint file missing"),
-    (["--checkpoint", "x", "--agent-episodes", "0"], "--agent-episodes must be at least 1"),
-    (["--checkpoint", "x", "--eval-episodes", "-2"], "--eval-episodes must be at least 1"),
+    (["--checkpoint", "x", "--agent-episodes", "0"], "Invalid value for '--agent-episodes'"),
+    (["--checkpoint", "x", "--eval-episodes", "-2"], "Invalid value for '--eval-episodes'"),
 ])
 def test_check_refuses_bad_input_in_one_line(args, message):
     res = _nmrm("check", *args)

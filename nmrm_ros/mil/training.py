@@ -96,6 +96,27 @@ class TrainConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def check(self) -> "TrainConfig":
+        """self, or a ValueError naming the first setting out of its range."""
+        rules = [("lr", self.lr > 0, "> 0"), ("weight_decay", self.weight_decay >= 0, ">= 0"),
+                 ("dropout", 0 <= self.dropout < 1, "in [0, 1)"), ("patience", self.patience >= 1, ">= 1"),
+                 ("max_epochs", self.max_epochs >= 1, ">= 1"), ("batch_size", self.batch_size >= 1, ">= 1"),
+                 ("return_scale", self.return_scale > 0, "> 0"),
+                 ("normalisation", self.normalisation in ("standard", "minmax"), "standard or minmax"),
+                 ("threads", self.threads >= 1, ">= 1"),
+                 ("schedule", self.schedule in SCHEDULES, " or ".join(SCHEDULES)),
+                 ("warmup_epochs", self.warmup_epochs >= 0, ">= 0"),
+                 ("min_lr_ratio", 0 <= self.min_lr_ratio <= 1, "in [0, 1]"),
+                 ("grad_clip", self.grad_clip >= 0, ">= 0"), ("hidden_size", self.hidden_size >= 1, ">= 1"),
+                 ("label_swap", 0 <= self.label_swap <= 1, "in [0, 1]"),
+                 ("reward_l1", self.reward_l1 >= 0, ">= 0"), ("members", self.members >= 1, ">= 1"),
+                 ("plateau_patience", self.plateau_patience >= 1, ">= 1"),
+                 ("plateau_factor", 0 < self.plateau_factor < 1, "in (0, 1)")]
+        for name, ok, allowed in rules:
+            if not ok:
+                raise ValueError(f"training setting {name} must be {allowed}, got {getattr(self, name)!r}")
+        return self
+
 
 @dataclass
 class TrainResult:
@@ -142,7 +163,7 @@ def load_train_config(task: str, path: str | Path | None = None, **overrides) ->
     unknown = set(values) - set(TrainConfig.__dataclass_fields__)
     if unknown:
         raise ValueError(f"unknown training settings {sorted(unknown)}")
-    return TrainConfig(**{k: _coerce(k, v) for k, v in values.items()})
+    return TrainConfig(**{k: _coerce(k, v) for k, v in values.items()}).check()
 
 
 def _coerce(name: str, value):

@@ -1,0 +1,36 @@
+"""Wrong invocations of `nmrm` end in a one-line error and exit code 2, before any work is done
+and without a traceback: counts out of range, training settings out of range, a file of the
+wrong kind, an output that cannot be written, an unknown choice."""
+
+import subprocess
+
+import pytest
+
+from graph_helpers import executable
+
+
+@pytest.mark.parametrize("args,message", [
+    ("dataset generate --task key --episodes 0 --out {tmp}/x", "--episodes"),
+    ("dataset generate --task key --episodes -3 --out {tmp}/x", "--episodes"),
+    ("dataset screen --task key --n 0", "--n"),
+    ("train --task key --n 0", "--n"),
+    ("train --task key --n 50 --lr -1", "lr must be > 0"),
+    ("train --task key --batch-size 0", "--batch-size"),
+    ("train --task key --epochs 0", "--epochs"),
+    ("train --task key --epochs -1", "--epochs"),
+    ("train --task key --split-mode nope", "--split-mode must be one of"),
+    ("train --task key --n 50 --label-swap 2", "label_swap must be in [0, 1]"),
+    ("train --task key --n 50 --reward-l1 -1", "reward_l1 must be >= 0"),
+    ("train --task key --n 5 --out {tmp}/m", "5 trajectories cannot be split"),
+    ("train --data /etc/passwd --out {tmp}/m", "is not a dataset .npz"),
+    ("train --task key --n 50 --out {tmp}/file/m", "cannot write to"),
+    ("rl train --task key --reward oracle --episodes 0", "--episodes"),
+    ("check --checkpoint {tmp}/missing", "checkpoint file missing"),
+])
+def test_a_wrong_invocation_is_a_one_line_error(tmp_path, args, message):
+    (tmp_path / "file").write_text("not a directory")
+    res = subprocess.run([executable("nmrm"), *args.format(tmp=tmp_path).split()], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
+    assert message in res.stderr and "Traceback" not in res.stderr, res.stderr
+    assert not (tmp_path / "m.pt").exists()
