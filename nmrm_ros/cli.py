@@ -162,7 +162,7 @@ def demo(
 def launch(
     ctx: typer.Context,
     file: Path = typer.Argument(..., help="a ROS 2 YAML launch file (see nmrm_ros/launcher.py)"),
-    grace: float = typer.Option(10.0, help="seconds between SIGINT and SIGTERM when stopping"),
+    grace: float = typer.Option(10.0, min=0.0, help="seconds between SIGINT and SIGTERM when stopping"),
 ) -> None:
     """Run a launch file's nodes as separate processes; extra NAME:=VALUE set launch arguments."""
     from .launcher import LaunchError, parse_launch_file, run
@@ -192,7 +192,7 @@ def fleet(
     save_every: int = typer.Option(50, min=1, help="save the policy every this many fleet episodes"),
     learning_starts: int = typer.Option(-1, min=-1, help="random steps before learning (-1: config/rl.yaml)"),
     save_replay_buffer: bool = typer.Option(False, help="also save OUT/policy/replay_buffer.pkl"),
-    grace: float = typer.Option(10.0, help="seconds between SIGINT and SIGTERM when stopping"),
+    grace: float = typer.Option(10.0, min=0.0, help="seconds between SIGINT and SIGTERM when stopping"),
 ) -> None:
     """N namespaced robot graphs (env_sim, reward_model, labeller) and one learner that trains one
     policy from all of them, with one recorder for the fleet (launch_scripts/fleet_*.launch.yaml)."""
@@ -305,9 +305,9 @@ def train(
     ensemble: int = typer.Option(None, min=1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1; "
                                  "served as their mean reward); default: the task's `members` in the config"),
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
-    label_swap: float = typer.Option(None, help="label noise: swap this fraction of the training and "
+    label_swap: float = typer.Option(None, min=0.0, max=1.0, help="label noise: swap this fraction of the training and "
                                      "validation labels between trajectories (paper Sec. 5.2)"),
-    reward_l1: float = typer.Option(None, help="override the weight of the L1 sparsity prior on "
+    reward_l1: float = typer.Option(None, min=0.0, help="override the weight of the L1 sparsity prior on "
                                     "per-step rewards (config/mil_training.yaml; 0: off)"),
 ) -> None:
     """Train a MIL reward model or an ensemble (early stopping on validation return MSE) and
@@ -320,29 +320,28 @@ def train(
     if split_mode not in SPLIT_MODES:
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
     _require_writable(out.parent)
+    settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
+                    reward_l1=reward_l1)
+    if task:  # the settings are checked before any data is loaded or generated
+        _bad_input(load_train_config, task, config, **settings)
     if bag:
         ds, source = _load_bags(bag, task, labeller)
     else:
         ds, source = _load_or_generate(data, task, n, data_seed)
+    cfg = _bad_input(load_train_config, ds.task, config, **settings)
     if len(ds) < 10:
         raise typer.BadParameter(f"{len(ds)} trajectories cannot be split 80/10/10 into train, validation "
                                  f"and test sets: give at least 10 (the paper: 5000)")
     if len(ds) < 100:
         typer.echo(f"warning: only {len(ds)} trajectories; the validation and test sets have about "
                    f"{len(ds) // 10} each, so the figures below are noise", err=True)
-    cfg = _bad_input(load_train_config, ds.task, config, max_epochs=epochs, lr=lr,
-                     batch_size=batch_size, seed=seed, label_swap=label_swap, reward_l1=reward_l1)
     typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
     ensemble = cfg.members if ensemble is None else ensemble
     if ensemble > 1:
-        if split_mode not in SPLIT_MODES:
-            raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}")
         _train_ensemble(ds, arch, cfg, ensemble, split_seed, split_mode, out, source)
         return
-    if ensemble < 1:
-        raise typer.BadParameter(f"--ensemble must be at least 1, got {ensemble}")
     run = train_and_evaluate(ds, arch, cfg, split_seed=split_seed, out=out, data_source=source)
     m = run.test_metrics
     typer.echo(f"best epoch {run.train.best_epoch}/{run.train.epochs_run} in {run.train.seconds:.1f} s; "
@@ -478,9 +477,9 @@ def check(
 
 @app.command("discovery-server")
 def discovery_server(
-    server_id: int = typer.Option(0, "--id", help="server id (its position in ROS_DISCOVERY_SERVER)"),
+    server_id: int = typer.Option(0, "--id", min=0, max=255, help="server id (its position in ROS_DISCOVERY_SERVER)"),
     address: str = typer.Option("0.0.0.0", help="address to listen on"),
-    port: int = typer.Option(11811, min=1, help="UDP port"),
+    port: int = typer.Option(11811, min=1025, max=65535, help="UDP port (Fast DDS: 1025-65535)"),
 ) -> None:
     """Run a Fast DDS Discovery Server (for networks without multicast); nodes then need
     ROS_DISCOVERY_SERVER=ADDRESS:PORT (README "Several machines"). Ctrl-C stops it."""
@@ -615,7 +614,7 @@ def main() -> None:
 
     stopped_by = _interrupt_on_stop_signals()
     try:
-        code = app(standalone_mode=False)
+        code = app(standalone_mode=False, prog_name="nmrm")
     except click_errors.NoArgsIsHelpError:  # the help was printed already
         raise SystemExit(0) from None
     except click_errors.ClickException as exc:
