@@ -8,7 +8,8 @@ Per task, one CSC model (the task's defaults in config/mil_training.yaml: Timer 
 mean of 3) is trained on a screened dataset of data seed --data-seed (default 100: none of the
 benchmarks' data seeds), weights and split seeded the same; agent seed s (double DQN, 400
 episodes, config/rl.yaml; SB3 seed s, episode e seeded s + e) is trained on it once observing
-[s_t, h'_{t+1}, c'_{t+1}] ("hc"), once [s_t, h'_{t+1}] ("h"), and on the oracle with its hidden
+[s_t, h'_{t+1}, tanh c'_{t+1}] ("h_tanh_c", the default), once the raw [s_t, h'_{t+1}, c'_{t+1}]
+("h_c"), once [s_t, h'_{t+1}] ("h"), and on the oracle with its hidden
 state. Every agent is judged by the oracle: its final oracle return (mean of its last 50 training
 episodes) and its greedy policy's oracle return on 50 new episodes (seeds 10^8...).
 
@@ -30,8 +31,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("timer", "moving", "key", "charger")
-KINDS = ("hc", "h", "oracle")  # served [h', c'], served h', the oracle with its hidden state
-LABELS = {"hc": "CSC, [h', c'] served", "h": "CSC, h' served", "oracle": "oracle with hidden state"}
+KINDS = ("h_tanh_c", "h_c", "h", "oracle")  # the served states (nmrm_ros.mil.served_state), the oracle
+LABELS = {"h_tanh_c": "CSC, [h', tanh c'] served", "h_c": "CSC, [h', c'] served", "h": "CSC, h' served",
+          "oracle": "oracle with hidden state"}
 
 
 def model_stem(work: Path, task: str, data_seed: int) -> Path:
@@ -77,7 +79,7 @@ def train_agent_job(job: tuple) -> dict:
     reward = "oracle" if kind == "oracle" else "model"
     t0 = time.perf_counter()
     run = train_agent(task, reward, checkpoint, episodes=episodes, seed=seed, out=out, progress=False,
-                      served=kind if kind != "oracle" else "hc")
+                      **({"served": kind} if kind != "oracle" else {}))
     seconds = time.perf_counter() - t0
     greedy = evaluate_agent(out / "policy.zip", task, checkpoint=checkpoint, episodes=50)
     result = {"task": task, "kind": kind, "seed": seed, "data_seed": data_seed, "episodes": episodes,

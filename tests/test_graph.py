@@ -196,7 +196,7 @@ def test_reward_model_serves_an_ensemble(capture, tmp_path):
     ("labeller_oracle", {"task": "maze"}, "unknown task 'maze'"),
     ("reward_model", {"mode": "model", "checkpoint": "/nonexistent/ckpt"}, "checkpoint file missing"),
     ("reward_model", {"mode": "oracle"}, "needs the parameter task"),
-    ("reward_model", {"mode": "model", "checkpoint": "/x", "served_state": "c"}, "served_state must be one of hc, h"),
+    ("reward_model", {"mode": "model", "checkpoint": "/x", "served_state": "c"}, "served_state must be one of h_tanh_c, h_c, h"),
     ("agent", {"policy": "sb3", "policy_path": "/nonexistent.zip"}, "existing policy_path"),
 ])
 def test_bad_configuration_exits_with_message(ros_domain, node, params, message):

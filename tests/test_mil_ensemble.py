@@ -138,8 +138,9 @@ def test_report_says_still_improving_at_the_limit():
     assert result.epochs_run == 3 and result.still_improving
     # a plateau (learning rate 0): stops on patience, not still improving
     model = build_model(model_config("csc_lstm", "push_switch", ds.state_size))
-    result = train_model(model, ds.subset(train), ds.subset(val),
-                         load_train_config("push_switch", max_epochs=50, patience=2, lr=0.0), progress=False)
+    flat = load_train_config("push_switch", max_epochs=50, patience=2)
+    flat.lr = 0.0  # below what a config accepts (lr > 0): set here for the test only
+    result = train_model(model, ds.subset(train), ds.subset(val), flat, progress=False)
     assert result.best_epoch == 1 and result.epochs_run == 3 and not result.still_improving
 
 

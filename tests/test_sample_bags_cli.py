@@ -91,7 +91,7 @@ def test_cli_rejects_bad_input(tmp_path):
 def test_cli_trains_the_tasks_default_ensemble(tmp_path):
     """Timer's config says `members: 3` (one model is unreliable there, README *Figures*): plain
     `nmrm train` trains three models in one pass and writes one ensemble checkpoint; `--ensemble 1`
-    one model. Key's default is one model."""
+    one model."""
     import json
 
     r = nmrm("train", "--bag", BAGS / "timer_screened", "--epochs", "1", "--out", tmp_path / "t")
@@ -103,7 +103,5 @@ def test_cli_trains_the_tasks_default_ensemble(tmp_path):
     r = nmrm("train", "--bag", BAGS / "timer_screened", "--epochs", "1", "--ensemble", "1", "--out", tmp_path / "one")
     assert r.returncode == 0 and "members in one pass" not in r.stdout, r.stderr
     assert "ensemble" not in json.loads((tmp_path / "one.json").read_text())
-    r = nmrm("train", "--bag", BAGS / "charger_screened", "--epochs", "1", "--out", tmp_path / "c")
-    assert r.returncode == 0 and "members in one pass" not in r.stdout, r.stderr
     r = nmrm("train", "--bag", BAGS / "key_screened", "--epochs", "1", "--reward-l1", "-1")
-    assert r.returncode != 0 and "reward_l1 must be >= 0" in r.stderr
+    assert r.returncode != 0 and "--reward-l1" in r.stderr and "Traceback" not in r.stderr

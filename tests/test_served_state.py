@@ -1,5 +1,5 @@
 """What the reward model serves as the agent's hidden state (nmrm_ros.mil.served_state): the LSTM's
-[h', c'] by default, so that a model that keeps its memory in the cell state while its output
+[h', tanh c'] by default, so that a model that keeps its memory in the cell state while its output
 gate hides it still shows it to the agent; the same in the online stepper, the batched forward,
 the wrapper and a checkpoint round trip; and `nmrm check`'s memory check telling the two apart."""
 
@@ -42,9 +42,22 @@ def hidden_memory_charger_model():
 
 
 def test_choices_and_sizes():
-    assert served_size(2) == 4 and served_size(2, "h") == 2 and served_size(0) == 0
+    assert served_size(2) == 4 and served_size(2, "h_c") == 4 and served_size(2, "h") == 2
+    assert served_size(0) == 0
     with pytest.raises(ValueError, match="unknown served state 'c'"):
         check_served_state("c")
+
+
+def test_the_kinds_are_one_state_seen_three_ways():
+    model = hidden_memory_charger_model()
+    states = np.random.default_rng(1).uniform(0, 1, (1, 60, 2)).astype(np.float32)
+    squashed, raw, h = (served_states(model, states, kind=k)[0] for k in ("h_tanh_c", "h_c", "h"))
+    np.testing.assert_array_equal(squashed[:, :2], h)
+    np.testing.assert_array_equal(raw[:, :2], h)
+    np.testing.assert_allclose(squashed[:, 2:], np.tanh(raw[:, 2:]), atol=1e-12)
+    for kind, batched in (("h_tanh_c", squashed), ("h_c", raw), ("h", h)):
+        online = OnlineRewardModel(model, served=kind)
+        np.testing.assert_allclose([online.step(s)[1] for s in states[0]], batched, atol=1e-6)
 
 
 def test_the_served_state_changes_while_the_charge_changes_and_h_alone_does_not():

@@ -1,4 +1,4 @@
-"""Hidden-state embeddings (paper Fig. 5): a model's served states [h'_{t+1}, c'_{t+1}] over many trajectories,
+"""Hidden-state embeddings (paper Fig. 5): a model's served states [h'_{t+1}, tanh c'_{t+1}] over many trajectories,
 as 2D points, beside the oracle's hidden variable and the time step at each point.
 
 For a hidden size above 2 the points are the first two principal components (NumPy SVD of the

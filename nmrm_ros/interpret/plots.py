@@ -117,7 +117,7 @@ def reward_map_figure(task: str, maps: list, path: Path) -> Path:
 def trace_figure(task: str, title: str, states: np.ndarray, rewards: dict, hidden: np.ndarray | None,
                  oracle_hidden: np.ndarray | None, path: Path) -> Path:
     """A trajectory: its path over the arena, the rewards per step (name -> (T,)), and the served
-    state per step (hidden (T, 2k): [h', c'], as `model_traces` gives it) beside the oracle's."""
+    state per step (hidden (T, 2k): [h', tanh c'], as `model_traces` gives it) beside the oracle's."""
     panels = 3 if hidden is not None and hidden.shape[-1] > 0 else 2
     fig, axes = plt.subplots(1, panels, figsize=(4.4 * panels, 4))
     ax = axes[0]
@@ -142,7 +142,7 @@ def trace_figure(task: str, title: str, states: np.ndarray, rewards: dict, hidde
         shown = list(range(min(k, 4))) + list(range(k, k + min(k, 4)))  # up to 4 of h' and of c'
         for j in shown:
             ax.plot(hidden[:, j], "-" if j < k else ":",
-                    label=f"learnt h'[{j}]" if j < k else f"learnt c'[{j - k}]")
+                    label=f"learnt h'[{j}]" if j < k else f"learnt tanh c'[{j - k}]")
         if oracle_hidden is not None:
             ax2 = ax.twinx()
             ax2.plot(oracle_hidden[:, 0], "k--", lw=1, label="oracle h[0]")
@@ -150,6 +150,6 @@ def trace_figure(task: str, title: str, states: np.ndarray, rewards: dict, hidde
             ax2.legend(loc="lower right", fontsize=7)
         ax.set_xlabel("t")
         ax.legend(loc="upper left", fontsize=7)
-        ax.set_title("served state [h', c']", fontsize=9)
+        ax.set_title("served state [h', tanh c']", fontsize=9)
     fig.suptitle(title, fontsize=10)
     return _save(fig, path)

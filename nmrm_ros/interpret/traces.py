@@ -2,7 +2,7 @@
 
 model_traces(model, states) -> rewards (N, T), hidden (N, T, 2k): the batched forward of a
 `MILRewardModel` or `MILEnsemble` (an ensemble: the members' mean reward, the serving member's
-served state [h'_{t+1}, c'_{t+1}], as the reward_model node publishes them;
+served state [h'_{t+1}, tanh c'_{t+1}], as the reward_model node publishes them;
 `nmrm_ros.mil.served_state`).
 oracle_traces(task, states) -> rewards (N, T), hidden (N, T, k_oracle): the ground truth.
 """
@@ -20,7 +20,7 @@ from ..oracles import make_oracle
 def model_traces(model, states: np.ndarray, lengths: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """states (N, T, d) (or (T, d) for one trajectory) -> rewards (N, T), served states
-    (N, T, 2k): [h', c'] per step."""
+    (N, T, 2k): [h', tanh c'] per step."""
     states = np.asarray(states, np.float32)
     single = states.ndim == 2
     x = torch.as_tensor(states[None] if single else states)

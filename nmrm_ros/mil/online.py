@@ -39,8 +39,9 @@ def _stacked_linear(ens: MILEnsemble, prefix: str, names: list, single: bool) ->
 class OnlineRewardModel:
     """`reset()` at each episode start, then `step(s_t) -> (r'_t, served_{t+1})`.
 
-    `hidden` is the current served state (`served_size`,) of the serving member: [h'_t, c'_t]
-    (2k values) with served="hc" (default), h'_t (k) with served="h"; size 0 for the Instance
+    `hidden` is the current served state (`served_size`,) of the serving member: [h'_t, tanh c'_t]
+    (2k values) with served="h_tanh_c" (default), [h'_t, c'_t] with "h_c", h'_t (k) with "h";
+    size 0 for the Instance
     Space NN. `states_h`, `states_c` are every member's h', c' ((K, k), or (k,) for one);
     after a step, `rewards` (K,) are the members' r'_t, `reward_std` their standard deviation and
     `return_std` the standard deviation of the members' returns so far (0 for one model).
@@ -99,7 +100,7 @@ class OnlineRewardModel:
             self.hidden = h
             return
         c = self.states_c if self.members == 1 else self.states_c[self.serving]
-        self.hidden = np.concatenate([h, c])
+        self.hidden = np.concatenate([h, np.tanh(c) if self.served == "h_tanh_c" else c])
 
     @staticmethod
     def _apply(w: np.ndarray, b: np.ndarray | None, z: np.ndarray) -> np.ndarray:

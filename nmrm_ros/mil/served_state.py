@@ -5,15 +5,18 @@ The paper augments the agent's state with the LSTM's output h'_{t+1} (Sec. 3.3, 
 what the output gate lets through, and a model may keep what it needs in c' while o hides it
 until the reward needs it. Measured on a Charger CSC model (issue 34): while the agent charges,
 h' stays flat (h'[0] ~ -0.71, h'[1] ~ 0.00 for 40 steps) and c'[1] counts the charge; an agent
-observing h' alone cannot know when it is charged. So by default (`"hc"`) we serve the full
-recurrent state, 2k values:
+observing h' alone cannot know when it is charged. So by default (`"h_tanh_c"`) we serve the
+full recurrent state, 2k values, with the cell state squashed as the output gate reads it:
 
-    served_{t+1} = [h'_{t+1}, c'_{t+1}]        (k = the LSTM's hidden size)
+    served_{t+1} = [h'_{t+1}, tanh(c'_{t+1})]        (k = the LSTM's hidden size)
 
-With it the augmented state [s_t, served_{t+1}] determines every future reward the model pays,
-which is what makes the agent's problem Markovian. `"h"` serves h'_{t+1} only (the paper's
-choice; kept for comparisons and for agents trained before this change). The Instance Space NN
-has no recurrent state: it serves nothing (size 0).
+tanh is one-to-one, so [h', tanh c'] carries what [h', c'] does, and the augmented state
+[s_t, served_{t+1}] determines every future reward the model pays: the agent's problem is
+Markovian. It keeps every input of the agent's network in [-1, 1]; c' itself is unbounded (on a
+Key model one unit reaches 37 while the others stay within +-2), and agents observing raw c'
+learnt worse greedy policies (bench/results/served_state_agents_*.txt). `"h_c"` serves the raw
+[h', c']; `"h"` h'_{t+1} only (the paper's choice; for comparisons and for agents trained
+before this change). The Instance Space NN has no recurrent state: it serves nothing (size 0).
 
 `served_states(model, states)` computes the served states of whole trajectories from the batched
 forward (h' from the model, c' by the LSTM's cell recursion on those h'); the online stepper
@@ -25,21 +28,21 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-SERVED_STATES = ("hc", "h")
-DEFAULT_SERVED_STATE = "hc"
+SERVED_STATES = ("h_tanh_c", "h_c", "h")
+DEFAULT_SERVED_STATE = "h_tanh_c"
 
 
 def check_served_state(kind: str) -> str:
     """`kind` if it is one of SERVED_STATES, else a ValueError naming the choices."""
     if kind not in SERVED_STATES:
         raise ValueError(f"unknown served state {kind!r}; use one of {', '.join(SERVED_STATES)} "
-                         f"(hc: the LSTM's [h', c'], h: h' only, as the paper)")
+                         f"(h_tanh_c: the LSTM's [h', tanh(c')], h_c: [h', c'], h: h' only, as the paper)")
     return kind
 
 
 def served_size(hidden_size: int, kind: str = DEFAULT_SERVED_STATE) -> int:
     """Size of the served state of a model with LSTM hidden size `hidden_size` (0: no LSTM)."""
-    return 2 * hidden_size if check_served_state(kind) == "hc" else hidden_size
+    return hidden_size if check_served_state(kind) == "h" else 2 * hidden_size
 
 
 @torch.no_grad()
@@ -75,4 +78,6 @@ def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
         cell = fg[:, step] * cell + i[:, step] * g[:, step]
         c[:, step] = cell
     mask = (torch.arange(t)[None, :] < lens[:, None]).double()[..., None]
+    if kind == "h_tanh_c":
+        c = torch.tanh(c)
     return torch.cat([h, c * mask], dim=-1).numpy()

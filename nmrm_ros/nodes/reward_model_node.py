@@ -2,9 +2,10 @@
 
 For every EnvObservation (episode e, step t, state s_t) it publishes a RewardStep with the
 served hidden state after consuming s_t, the augmented state [s_t, served] and the reward r'_t.
-What is served (`served_state`): "hc", the LSTM's full recurrent state [h'_{t+1}, c'_{t+1}]
-(2k values; the default, because the output gate can hide the model's memory from h' alone:
-`nmrm_ros.mil.served_state`), or "h", h'_{t+1} only (the paper's choice). The recurrent state is
+What is served (`served_state`): "h_tanh_c", the LSTM's full recurrent state
+[h'_{t+1}, tanh c'_{t+1}] (2k values; the default, because the output gate can hide the model's
+memory from h' alone: `nmrm_ros.mil.served_state`), "h_c" the raw [h', c'], or "h", h'_{t+1}
+only (the paper's choice). The recurrent state is
 reset to (h'_0, c'_0) at step 0 of each episode. The episode's final observation
 (terminated/truncated) gets a RewardStep too, flagged the same way: its augmented state is the
 terminal state an RL agent bootstraps from; its reward belongs to no transition.
@@ -50,8 +51,8 @@ PARAMETERS = {
     "task": Param("", "task; mode oracle: required; mode model: checked against the checkpoint"),
     "source": Param("", "id published in RewardStep.source (default: checkpoint name or 'oracle'); "
                         "kept across live reloads"),
-    "served_state": Param("hc", "mode model: the hidden state served, hc ([h', c'] of the LSTM, 2k "
-                                "values) or h (h' only, k values, as the paper)"),
+    "served_state": Param("h_tanh_c", "mode model: the hidden state served, h_tanh_c ([h', tanh c'] of "
+                                      "the LSTM, 2k values), h_c ([h', c']) or h (h' only, k values, as the paper)"),
 }
 
 

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..mil.served_state import DEFAULT_SERVED_STATE
+
 #: default first episode seed of evaluations: far from the training seeds (0, 1, 2... + e)
 EVAL_SEED = 10**8
 
@@ -74,15 +76,15 @@ def _reward_kind(model, task: str, checkpoint, meta: dict) -> tuple[str, object]
 def served_state_of(model, task: str, checkpoint, meta: dict) -> str:
     """What of the reward model's state a policy observes: agent.json's `served_state`, else (a
     policy saved before it was recorded) inferred from its observation size: [h', c'] or h'."""
-    if meta.get("served_state"):
-        return meta["served_state"]
+    if meta.get("served_state"):  # "hc": the raw [h', c'], as policies of 2026-12-02 named it
+        return {"hc": "h_c"}.get(meta["served_state"], meta["served_state"])
     from ..mil import load_checkpoint
     from ..tasks import task_info
 
     k = load_checkpoint(checkpoint, task=task)[0].hidden_size
     extra = model.observation_space.shape[0] - task_info(task).state_size
     if extra == 2 * k:
-        return "hc"
+        return "h_c"
     if extra == k:
         return "h"
     raise ValueError(f"the policy observes {extra} values beyond the state; the reward model serves "
@@ -109,7 +111,7 @@ def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, epis
     if reward is None:
         reward, checkpoint = _reward_kind(model, task, checkpoint, meta)
     if env is None:
-        served = served_state_of(model, task, checkpoint, meta) if reward == "model" else "hc"
+        served = served_state_of(model, task, checkpoint, meta) if reward == "model" else DEFAULT_SERVED_STATE
         env = make_reward_env(task, reward, checkpoint if reward == "model" else None, seed=seed,
                               served=served)
     if env.observation_space.shape != model.observation_space.shape:

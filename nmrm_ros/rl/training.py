@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from ..mil.served_state import DEFAULT_SERVED_STATE
+
 CURVE_FIELDS = ("episode", "oracle_return", "learnt_return", "steps", "wall_time")
 
 
@@ -126,7 +128,7 @@ class AgentRun:
 def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
                 episodes: int | None = None, seed: int = 0, out: str | Path | None = None,
                 env_seed: int | None = None, n_envs: int = 1, progress: bool = True,
-                config: str | Path | None = None, on_episode=None, served: str = "hc",
+                config: str | Path | None = None, on_episode=None, served: str = DEFAULT_SERVED_STATE,
                 **overrides) -> AgentRun:
     """Train the paper's agent for `task` on reward `reward` ("model" with `checkpoint`, "oracle",
     "oracle-no-hidden") for `episodes` episodes (default: the config's).
@@ -134,7 +136,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     seed: SB3's seed (weights, exploration, replay sampling); env_seed: episode e of env i resets
     with `env_seed + i * 10**6 + e` (default env_seed = seed), as an env_sim node with
     `seed:=env_seed` does for env 0. served: what of the model's recurrent state the agent observes
-    (reward "model": "hc" = [h', c'], "h" = h' only; `nmrm_ros.mil.served_state`). overrides:
+    (reward "model": "h_tanh_c" = [h', tanh c'], "h_c" = [h', c'], "h" = h' only;
+    `nmrm_ros.mil.served_state`). overrides:
     settings of config/rl.yaml (e.g. learning_starts).
     """
     import torch

@@ -25,6 +25,7 @@ from typing import Protocol
 import gymnasium as gym
 import numpy as np
 
+from ..mil.served_state import DEFAULT_SERVED_STATE
 from ..oracles import Oracle, OracleTracker, make_oracle
 
 REWARD_KINDS = ("model", "oracle", "oracle-no-hidden")
@@ -112,11 +113,12 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
     """Observation [s_t, served_{t+1}] and reward r'_t from a trained MIL model, stepped online.
 
     model: a `MILRewardModel` or a checkpoint path (its task must be the env's); served: what of
-    the LSTM's state is observed, "hc" ([h', c'], default) or "h" (h' only, the paper's choice;
-    `nmrm_ros.mil.served_state`).
+    the LSTM's state is observed, "h_tanh_c" ([h', tanh c'], default), "h_c" ([h', c']) or "h"
+    (h' only, the paper's choice; `nmrm_ros.mil.served_state`).
     """
 
-    def __init__(self, env: gym.Env, model, task: str | None = None, served: str = "hc") -> None:
+    def __init__(self, env: gym.Env, model, task: str | None = None,
+                 served: str = DEFAULT_SERVED_STATE) -> None:
         from ..mil import OnlineRewardModel, load_checkpoint
 
         if isinstance(model, (str, Path)):
@@ -142,11 +144,12 @@ class OracleRewardWrapper(NonMarkovianRewardWrapper):
 
 
 def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None,
-                    seed: int = 0, continuous: bool = False, served: str = "hc") -> gym.Env:
+                    seed: int = 0, continuous: bool = False,
+                    served: str = DEFAULT_SERVED_STATE) -> gym.Env:
     """A task env with episode seeds `seed + e` and the reward of `reward` (one of REWARD_KINDS).
 
     reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`); `served`: what of the
-    model's recurrent state the agent observes ("hc" or "h", `RewardModelWrapper`).
+    model's recurrent state the agent observes (`RewardModelWrapper`).
     """
     from ..tasks import make_env
 
