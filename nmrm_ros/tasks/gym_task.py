@@ -113,7 +113,7 @@ def _construct(spec: TaskSpec) -> gym.Env:
     return env
 
 
-def _episode_limit(env: gym.Env, spec: TaskSpec) -> int | None:
+def _episode_limit(env: gym.Env) -> int | None:
     """The env's own step limit (its TimeLimit / spec), or None."""
     limit = getattr(env.spec, "max_episode_steps", None) if env.spec is not None else None
     inner = env
@@ -146,7 +146,7 @@ class GymTaskEnv(gym.Wrapper):
 
     def __init__(self, env: gym.Env, spec: TaskSpec) -> None:
         _check_spaces(env, spec)
-        limit = _episode_limit(env, spec)
+        limit = _episode_limit(env)
         if spec.max_steps is not None and (limit is None or spec.max_steps < limit):
             env = gym.wrappers.TimeLimit(env, spec.max_steps)
             limit = spec.max_steps
