@@ -94,6 +94,7 @@ class Driver(Capture):
         super().__init__()
         self.obs = self.publisher(EnvObservation, OBSERVATION)
         self.labels = self.publisher(TrajectoryReturn, TRAJECTORY_RETURN)
+        self.param_clients: dict = {}
 
     def wait_for_subscribers(self, observation: int, labels: int = 0, timeout: float = 60.0) -> None:
         """Until `observation` and `labels` nodes subscribe (besides this one's own subscriptions)."""
@@ -119,26 +120,32 @@ class Driver(Capture):
         self.labels.publish(TrajectoryReturn(task="key", episode=episode, length=length,
                                              return_value=value, labeller=labeller))
 
+    def _call(self, node: str, request) -> object:
+        """The answer of `node`'s parameter service to `request(client)` (a future), as `ros2 param`
+        gets it, with one client per node. A reply can be lost when the server has not discovered
+        a new client's reply reader yet (two DDS topics; ros2/rcl#1048): after 10 s unanswered the
+        request is sent again, 3 times in all (get and set of one value are idempotent)."""
+        from rclpy.parameter_client import AsyncParameterClient
+
+        if node not in self.param_clients:
+            self.param_clients[node] = AsyncParameterClient(self.node, node)
+        client = self.param_clients[node]
+        assert self.spin_until(client.services_are_ready, 20)
+        for _ in range(3):
+            future = request(client)
+            if self.spin_until(future.done, 10):
+                return future.result()
+        raise AssertionError(f"{node}'s parameter service did not answer 3 requests")
+
     def set_checkpoint(self, node: str, path) -> tuple:
         """(successful, reason) of setting `node`'s checkpoint parameter, as `ros2 param set` does."""
         from rclpy.parameter import Parameter
-        from rclpy.parameter_client import AsyncParameterClient
 
-        client = AsyncParameterClient(self.node, node)
-        assert self.spin_until(client.services_are_ready, 20)
-        future = client.set_parameters([Parameter("checkpoint", value=str(path))])
-        assert self.spin_until(future.done, 20)
-        result = future.result().results[0]
-        return result.successful, result.reason
+        result = self._call(node, lambda c: c.set_parameters([Parameter("checkpoint", value=str(path))]))
+        return result.results[0].successful, result.results[0].reason
 
     def get_checkpoint(self, node: str) -> str:
-        from rclpy.parameter_client import AsyncParameterClient
-
-        client = AsyncParameterClient(self.node, node)
-        assert self.spin_until(client.services_are_ready, 20)
-        future = client.get_parameters(["checkpoint"])
-        assert self.spin_until(future.done, 20)
-        return future.result().values[0].string_value
+        return self._call(node, lambda c: c.get_parameters(["checkpoint"])).values[0].string_value
 
 
 def test_reward_model_swaps_a_new_checkpoint_only_at_the_next_episode(ros_domain, tmp_path):

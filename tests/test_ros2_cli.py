@@ -133,14 +133,15 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
     reader.start()
 
-    def wait_for(text: str, timeout: float = 90.0) -> str:
+    def wait_for(text: str, timeout: float = 90.0, count: int = 1) -> str:
+        """The `count`-th line of the launch output containing `text`."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            for line in list(lines):
-                if text in line:
-                    return line
+            found = [line for line in list(lines) if text in line]
+            if len(found) >= count:
+                return found[count - 1]
             time.sleep(0.2)
-        raise AssertionError(f"no {text!r} in\n{''.join(lines)}")
+        raise AssertionError(f"no {count} x {text!r} in\n{''.join(lines)}")
 
     def api(path: str, body=None):
         data = None if body is None else json.dumps(body).encode()
@@ -149,7 +150,8 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
 
     try:
         base = wait_for("labelling page: ").split("labelling page: ")[1].split()[0].rstrip("/")
-        wait_for("[env_sim]: done: 4 episodes")
+        # env_sim's "done" says all was published, not that the page has followed it all yet
+        wait_for("waits for a label", count=4)
         queue = api("/api/queue")["episodes"]
         assert len(queue) == 4 and all(e["why"].startswith("models disagree") for e in queue), queue
         for e in queue[:2]:

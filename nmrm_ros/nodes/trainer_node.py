@@ -52,6 +52,10 @@ PARAMETERS = {
 }
 
 
+TELL_TIMEOUT_S = 10.0  # wait this long for a node's answer to "load this checkpoint" ...
+TELL_ATTEMPTS = 3  # ... and ask this many times in all
+
+
 def _die_with_parent() -> None:
     """In the child, before exec: SIGTERM it when the trainer dies, even by kill -9 (Linux)."""
     try:
@@ -212,14 +216,25 @@ class TrainerNode(Node):
 
         return AsyncParameterClient(self, name)
 
-    def _tell(self, client, checkpoint: str) -> None:
+    def _tell(self, client, checkpoint: str, attempt: int = 1) -> None:
+        """Set `checkpoint` on the node behind `client`; log its answer once.
+
+        A request can go unanswered: a ROS 2 service is two DDS topics, and under load the server
+        may not yet have discovered this client's reply reader when it answers (rmw drops the reply
+        with a "failed to send response" warning; see ros2/rcl#1048). The parameter is set all the
+        same, but without an answer nobody knows: after TELL_TIMEOUT_S the request is sent again
+        (setting the same checkpoint twice is harmless), at most TELL_ATTEMPTS times."""
         node = client.remote_node_name
         if not client.services_are_ready():
             self.get_logger().warning(f"{node} is not reachable; it keeps its model")
             return
         future = client.set_parameters([Parameter("checkpoint", value=str(checkpoint))])
+        state = {"answered": False}
 
         def done(f) -> None:
+            if state["answered"] or f.cancelled():
+                return
+            state["answered"] = True
             try:
                 result = f.result().results[0]
             except Exception as exc:  # noqa: BLE001 - a service failure is reported, not raised
@@ -230,7 +245,20 @@ class TrainerNode(Node):
             else:
                 self.get_logger().warning(f"{node} refused {checkpoint}: {result.reason}")
 
+        def no_answer() -> None:
+            self.destroy_timer(timer)
+            if state["answered"] or checkpoint != self.latest:
+                return
+            state["answered"] = True  # a late answer to this request is not logged twice
+            if attempt < TELL_ATTEMPTS:
+                self.get_logger().warning(f"{node} did not answer in {TELL_TIMEOUT_S:g} s; asking again")
+                self._tell(client, checkpoint, attempt + 1)
+            else:
+                self.get_logger().warning(f"{node} did not answer {TELL_ATTEMPTS} requests to load "
+                                          f"{checkpoint}; it may keep its model")
+
         future.add_done_callback(done)
+        timer = self.create_timer(TELL_TIMEOUT_S, no_answer)
 
     def close(self) -> None:
         if self.child is not None and self.child.poll() is None:

@@ -29,7 +29,11 @@ class NodeError(RuntimeError):
     """A configuration or input error that stops a node with a clear message."""
 
 
-SHUTDOWN_LIMIT_S = 30.0  # flush (<= 5 s), destroy, rclpy shutdown and interpreter exit together
+# From the end of spinning: close(), executor shutdown (<= 2 s), flush (<= 3 s), destroy, rclpy shutdown and interpreter
+# exit together. ros2 launch escalates SIGINT to SIGTERM after 5 s and to SIGKILL 10 s later: past
+# this limit, which comes first, every thread's stack is written to stderr (so a hang says where)
+# and the process exits with code 1.
+SHUTDOWN_LIMIT_S = 12.0
 
 _TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a double", str: "a string"}
 
@@ -171,14 +175,15 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        stopping = time.monotonic()
         if node is not None:
             close = getattr(node, "close", None)
             if close is not None:
                 close()  # the node's own files (bags, checkpoints) are complete after this
         # The DDS teardown below once hung for minutes on a loaded machine (a CI run: env_sim had
-        # said "done" and never exited). Bound it, through interpreter exit: past the limit every
-        # thread's stack is written to stderr and the process exits with code 1.
-        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+        # said "done" and never exited). Bound it, through interpreter exit (SHUTDOWN_LIMIT_S).
+        left = SHUTDOWN_LIMIT_S - (time.monotonic() - stopping)
+        faulthandler.dump_traceback_later(max(left, 2.0), exit=True)
         if executor is not None:
             # Stop the executor while the node's entities exist: it holds them "in use", and an
             # executor dropped only when this function returns (after destroy_node and
@@ -187,10 +192,10 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
             # event_handler.__exit__ called from main after run_node had returned).
             if node is not None:
                 executor.remove_node(node)
-            executor.shutdown(timeout_sec=5.0)
+            executor.shutdown(timeout_sec=2.0)
             executor = None
         if node is not None:
-            _flush_publishers(node)
+            _flush_publishers(node, timeout=3.0)
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
