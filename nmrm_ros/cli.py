@@ -58,31 +58,47 @@ dataset_app = typer.Typer(help="Generate labelled trajectory datasets (screened 
 app.add_typer(dataset_app, name="dataset")
 
 
-@dataset_app.command("screen")
-def dataset_screen(
-    task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
-    n: int = typer.Option(5000, min=1, help="trajectories to keep"),
-    seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
-    out: Path = typer.Option(None, help="write the dataset here (.npz)"),
-    key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
-    pool_size: int = typer.Option(None, min=1, help="lunar_lander: episodes in the pool (default 2n)"),
-) -> None:
-    """Generate a screened dataset (paper App. D.2) and print draws and time."""
+TASK_HELP = "timer | moving | key | charger | lunar_lander, or your own: gym:<id> | <module>:<attribute>"
+ORACLE_HELP = ("your own oracle, <module>:<function> or <file.py>:<function> (needed for your own "
+               "task; default: the task's own)")
+
+
+def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool, pool_size: int | None,
+              bins: int):
+    """The screened dataset the dataset commands write (see datasets.generate_screened)."""
     from tqdm import tqdm
 
     from .datasets import generate_screened
-    from .tasks import check_task
+    from .tasks import check_task, is_task_spec
 
     _bad_input(check_task, task)
-    kwargs = {}
-    if task == "lunar_lander":
-        kwargs["pool_size"] = pool_size or 2 * n
-    else:
+    kwargs: dict = {"pool_size": pool_size, "bins": bins}
+    if oracle or is_task_spec(task):
+        bar = tqdm(total=pool_size or 4 * n, desc=f"rolling out {task}", unit="ep", leave=False, disable=None)
+        kwargs["progress"] = lambda done: bar.update(done - bar.n)
+    elif task != "lunar_lander":
         kwargs["key_fourth_class"] = key_fourth_class
         bar = tqdm(total=n, desc=f"screening {task}", unit="traj", leave=False, disable=None)
         kwargs["progress"] = lambda kept, examined: (bar.update(kept - bar.n),
                                                      bar.set_postfix(draws=examined))
-    ds = generate_screened(task, n, seed=seed, **kwargs)
+    return _bad_input(generate_screened, task, n, seed=seed, oracle=oracle, **kwargs)
+
+
+@dataset_app.command("screen")
+def dataset_screen(
+    task: str = typer.Option(..., help=TASK_HELP),
+    n: int = typer.Option(5000, min=1, help="trajectories to keep"),
+    seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
+    out: Path = typer.Option(None, help="write the dataset here (.npz)"),
+    oracle: str = typer.Option("", help=ORACLE_HELP),
+    key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
+    pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
+                                                    "default 2n; your own task or oracle: 4n)"),
+    bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
+) -> None:
+    """Generate a screened dataset (paper App. D.2; your own task: balanced return bins) and
+    print draws and time."""
+    ds = _screened(task, n, seed, oracle, key_fourth_class, pool_size, bins)
     typer.echo(_dataset_summary(ds))
     if out is not None:
         typer.echo(f"wrote {ds.save(out)}")
@@ -90,23 +106,23 @@ def dataset_screen(
 
 @dataset_app.command("generate")
 def dataset_generate(
-    task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
+    task: str = typer.Option(..., help=TASK_HELP),
     episodes: int = typer.Option(..., min=1, help="number of screened episodes to write"),
     out: Path = typer.Option(..., help="bag directory to create"),
     seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
+    oracle: str = typer.Option("", help=ORACLE_HELP),
     key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
+    pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
+                                                    "default 2n; your own task or oracle: 4n)"),
+    bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
 ) -> None:
     """Screened episodes written as a bag with the live graph's topics (observations, actions,
     oracle ground truth, oracle labels)."""
     import time
 
     from .bags import write_dataset_bag
-    from .datasets import generate_screened
-    from .tasks import check_task
 
-    _bad_input(check_task, task)
-    kwargs = {} if task == "lunar_lander" else {"key_fourth_class": key_fourth_class}
-    ds = generate_screened(task, episodes, seed=seed, **kwargs)
+    ds = _screened(task, episodes, seed, oracle, key_fourth_class, pool_size, bins)
     typer.echo(_dataset_summary(ds))
     t0 = time.perf_counter()
     try:
@@ -584,6 +600,10 @@ def _dataset_summary(ds) -> str:
     lines = [f"{ds.task}: {len(ds)} trajectories, state size {ds.state_size}, "
              f"return mean {ds.returns.mean():.3f} std {ds.returns.std():.3f} "
              f"min {ds.returns.min():.3f} max {ds.returns.max():.3f}"]
+    if meta.get("generator") == "return_screening":
+        lines.append(f"  {meta['pool']} episodes rolled out ({meta['policy']} policy, seed {meta['seed']}) in "
+                     f"{meta['seconds']:.2f} s; at most {meta['cap_per_bin']} per return bin of {meta['bins']}; "
+                     f"lengths {ds.lengths.min()}..{ds.lengths.max()}")
     if "draws" in meta:
         lines.append(f"  drawn {meta['draws']} trajectories in {meta.get('seconds', float('nan')):.2f} s "
                      f"(seed {meta.get('seed')})")

@@ -242,12 +242,26 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
     return ds
 
 
-def generate_screened(task: str, n_target: int = 5000, seed: int = 0, **kwargs) -> TrajectoryDataset:
-    """The screened dataset of any task (navigation: random policy; lunar_lander: scripted pool
-    of `pool_size` episodes, default 2 * n_target)."""
+def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: str = "",
+                      **kwargs) -> TrajectoryDataset:
+    """The screened dataset of any task: navigation, the paper's classes over random-policy
+    trajectories; lunar_lander, its classes over a scripted pool of `pool_size` episodes (default
+    2 * n_target); a task of the user's (a task spec) or any task with a user's `oracle`
+    ("<module>:<function>"), return bins over a random-policy pool (`return_screening`;
+    kwargs pool_size, bins)."""
+    from ..tasks import is_task_spec
+
     check_task(task)
+    if oracle or is_task_spec(task):
+        from .return_screening import screen_by_return
+
+        return screen_by_return(task, make_oracle(task, oracle), n_target, seed=seed,
+                                pool_size=kwargs.get("pool_size"), bins=kwargs.get("bins", 10),
+                                progress=kwargs.get("progress"))
+    kwargs.pop("bins", None)
     if task == "lunar_lander":
-        pool_size = kwargs.pop("pool_size", 2 * n_target)
+        pool_size = kwargs.pop("pool_size", None) or 2 * n_target
+        kwargs.pop("progress", None)
         return screen_lunar_lander(pool_size=pool_size, seed=seed, n_target=n_target, **kwargs)
     kwargs.pop("pool_size", None)
     return screen_navigation(task, n_target=n_target, seed=seed, **kwargs)

@@ -150,11 +150,17 @@ class EnsembleTrainResult:
                             for h in self.history])
 
 
+OWN_TASK = "your_own_task"  # the config entry of a task spec (gym:<id>, module:attr) without one of its own
+
+
 def load_train_config(task: str, path: str | Path | None = None, **overrides) -> TrainConfig:
     """The task's hyperparameters from the YAML config (its `defaults` merged with the task's
-    entry), then `overrides` (None values ignored)."""
+    entry; a task spec without an entry of its own takes `your_own_task`), then `overrides`
+    (None values ignored)."""
     with open(path or _config_path()) as f:
         table = yaml.safe_load(f)
+    if ":" in task and task not in table and OWN_TASK in table:  # a task spec without an entry of its own
+        task = OWN_TASK
     if task not in table or task.startswith("_"):
         known = ", ".join(k for k in table if k != "defaults" and not k.startswith("_"))
         raise ValueError(f"no training config for {task!r} in {path or _config_path()}; known: {known}")

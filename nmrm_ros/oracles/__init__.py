@@ -1,8 +1,10 @@
-"""Ground-truth labellers (oracles) of every task and toy dataset. Plain numpy, no ROS."""
+"""Ground-truth labellers (oracles) of every task and toy dataset, and a user's own oracle
+function (`function_oracle`). Plain numpy, no ROS."""
 
 from __future__ import annotations
 
 from .base import Oracle, OracleLabels, OracleTracker
+from .function_oracle import FunctionOracle, OracleError, is_oracle_spec
 from .lunar_lander import LunarLanderOracle
 from .navigation import ChargerOracle, KeyOracle, MovingOracle, TimerOracle
 from .toy import DialOracle, PushSwitchOracle, ToggleSwitchOracle
@@ -19,12 +21,22 @@ ORACLES: dict[str, type[Oracle]] = {
 }
 
 
-def make_oracle(task: str) -> Oracle:
-    """The oracle of a task or toy dataset; ValueError naming the known ones otherwise."""
+def make_oracle(task: str, oracle: str = "") -> Oracle:
+    """The oracle of a task or toy dataset, or (`oracle` = "<module>:<function>") a user's oracle
+    function on `task`; ValueError (one line) if there is none."""
+    if oracle:
+        from ..tasks import task_info
+
+        info = task_info(task)
+        return FunctionOracle(oracle, task, info.state_size, 1 if info.discrete else info.action_size)
     try:
         return ORACLES[task]()
     except KeyError:
+        if ":" in task:
+            raise OracleError(f"task {task!r} has no oracle of ours: give your own as --oracle "
+                              f"<module>:<function> (oracle:=... for a node)") from None
         raise ValueError(f"no oracle for {task!r}; known: {', '.join(ORACLES)}") from None
 
 
-__all__ = ["Oracle", "OracleLabels", "OracleTracker", "ORACLES", "make_oracle"]
+__all__ = ["FunctionOracle", "Oracle", "OracleError", "OracleLabels", "OracleTracker", "ORACLES",
+           "is_oracle_spec", "make_oracle"]

@@ -1,0 +1,132 @@
+"""Screened datasets of any task with any oracle: balance the return histogram.
+
+The paper screens its tasks by task-specific trajectory classes (App. D.2), because a random
+policy rarely shows the interesting behaviour. For a task of a user's, we know nothing but the
+oracle's return, so the classes are return bins, and the rule is the same in spirit:
+
+1. roll out a pool of `pool_size` episodes (uniform-random actions, or a Stable-Baselines3
+   policy), episode e reset with seed `seed + e`;
+2. label every episode with the oracle; cut the pool's return range [min, max] into `bins`
+   equal-width bins (class id = bin index, 0 = lowest returns);
+3. keep, in draw order, at most `cap` episodes per bin, `cap` the smallest number for which the
+   pool fills the `n` asked for: the most even return histogram the pool allows (rare returns
+   are all kept, common ones thinned out).
+
+An oracle whose returns are all equal gives one bin (nothing to balance); a pool of fewer than `n`
+episodes is refused.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+
+from ..oracles import Oracle, OracleError
+from ..tasks import make_env, task_info
+from ..tasks.gym_task import TaskSpecError
+from .trajectories import TrajectoryDataset
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+def rollout_episodes(task: str, episodes: int, seed: int = 0, policy: Policy | None = None,
+                     progress: Callable[[int], None] | None = None) -> list:
+    """`episodes` episodes of `task`: a list of (states (L + 1, d) float32, actions (L, A) float32).
+
+    Episode e is reset with seed `seed + e`; `policy(state) -> action` (None: uniform random,
+    the action space seeded with `seed`). A Discrete action is stored as one column."""
+    env = make_env(task)
+    env.action_space.seed(seed)
+    out = []
+    try:
+        for e in range(episodes):
+            try:
+                out.append(_episode(env, seed + e, policy))
+            except (TaskSpecError, OracleError):
+                raise
+            except Exception as exc:  # noqa: BLE001 - the user's env or policy: one line naming it
+                raise TaskSpecError(f"task {task}: episode {e} (seed {seed + e}) failed: "
+                                    f"{type(exc).__name__}: {exc}") from None
+            if progress is not None:
+                progress(e + 1)
+    finally:
+        env.close()
+    return out
+
+
+def _episode(env, seed: int, policy: Policy | None) -> tuple[np.ndarray, np.ndarray]:
+    obs, _ = env.reset(seed=seed)
+    states, actions = [np.asarray(obs, np.float32)], []
+    done = False
+    while not done:
+        action = env.action_space.sample() if policy is None else policy(obs)
+        obs, _, terminated, truncated, _ = env.step(action)
+        states.append(np.asarray(obs, np.float32))
+        actions.append(np.asarray(action, np.float32).reshape(-1))
+        done = terminated or truncated
+    if not actions:
+        raise TaskSpecError("the episode ended at reset")
+    return np.stack(states), np.stack(actions)
+
+
+def return_bins(returns: np.ndarray, bins: int) -> np.ndarray:
+    """Bin index (n,) int64 of each return: `bins` equal-width bins over [min, max] (0 if all equal)."""
+    returns = np.asarray(returns, dtype=np.float64)
+    low, high = float(returns.min()), float(returns.max())
+    if high <= low:
+        return np.zeros(len(returns), np.int64)
+    idx = np.floor((returns - low) / (high - low) * bins).astype(np.int64)
+    return np.minimum(idx, bins - 1)
+
+
+def balanced_keep(classes: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+    """(indices kept in draw order, cap): at most `cap` per class, `cap` the smallest that keeps `n`."""
+    counts = np.bincount(classes)
+    cap = 1
+    while np.minimum(counts, cap).sum() < n:
+        cap += 1
+    taken = np.zeros_like(counts)
+    keep = []
+    for i, c in enumerate(classes):
+        if taken[c] < cap and len(keep) < n:
+            taken[c] += 1
+            keep.append(i)
+    return np.asarray(keep, np.int64), cap
+
+
+def screen_by_return(task: str, oracle: Oracle, n: int, pool_size: int | None = None, seed: int = 0,
+                     bins: int = 10, policy: Policy | None = None, policy_name: str = "random",
+                     progress: Callable[[int], None] | None = None) -> TrajectoryDataset:
+    """A screened dataset of `n` episodes of `task` labelled by `oracle` (module docstring).
+
+    pool_size defaults to 4 n. Episodes may vary in length (states are zero-padded to the
+    longest; `lengths` says how many steps each has)."""
+    pool_size = 4 * n if pool_size is None else pool_size
+    if pool_size < n:
+        raise ValueError(f"a pool of {pool_size} episodes cannot fill {n}")
+    if bins < 1:
+        raise ValueError(f"bins must be at least 1, got {bins}")
+    start = time.perf_counter()
+    pool = rollout_episodes(task, pool_size, seed, policy, progress)
+    info = task_info(task)
+    horizon = max(len(a) for _, a in pool)
+    width = pool[0][1].shape[1]
+    states = np.zeros((pool_size, horizon, info.state_size), np.float32)
+    actions = np.zeros((pool_size, horizon, width), np.float32)
+    final = np.zeros((pool_size, info.state_size), np.float32)
+    lengths = np.zeros(pool_size, np.int64)
+    for i, (s, a) in enumerate(pool):
+        lengths[i] = len(a)
+        states[i, : len(a)], actions[i, : len(a)], final[i] = s[:-1], a, s[-1]
+    labels = oracle.label(states, actions, lengths)
+    classes = return_bins(labels.returns, bins)
+    keep, cap = balanced_keep(classes, n)
+    horizon = int(lengths[keep].max())
+    meta = {"seed": seed, "generator": "return_screening", "policy": policy_name, "pool": pool_size,
+            "bins": bins, "cap_per_bin": cap, "oracle": getattr(oracle, "spec", task),
+            "seconds": time.perf_counter() - start}
+    return TrajectoryDataset(task, states[keep, :horizon], lengths[keep], labels.returns[keep],
+                             labels.rewards[keep, :horizon], labels.hidden[keep, :horizon],
+                             actions[keep, :horizon], final[keep], classes[keep], meta)
