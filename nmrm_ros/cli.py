@@ -517,8 +517,9 @@ app.add_typer(rl_app, name="rl")
 
 @rl_app.command("train")
 def rl_train(
-    task: str = typer.Option(..., help="timer | moving | key | charger | lunar_lander"),
+    task: str = typer.Option(..., help=TASK_HELP),
     reward: str = typer.Option("model", help="model | oracle | oracle-no-hidden"),
+    oracle: str = typer.Option("", help=ORACLE_HELP + "; it judges every episode"),
     checkpoint: Path = typer.Option(None, help="MIL checkpoint (reward model), trained on TASK"),
     episodes: int = typer.Option(None, min=1, help="training episodes (default: config/rl.yaml, 400 DQN / 800 SAC)"),
     seed: int = typer.Option(0, min=0, help="seed of the agent (weights, exploration) and of the episodes"),
@@ -541,7 +542,7 @@ def rl_train(
         raise typer.BadParameter(f"--episodes must be at least 1, got {episodes}")
     try:
         run = train_agent(task, reward, checkpoint=checkpoint, episodes=episodes, seed=seed, out=out,
-                          n_envs=envs, config=config)
+                          n_envs=envs, config=config, oracle=oracle)
     except (CheckpointError, ValueError) as exc:
         raise typer.BadParameter(str(exc)) from None
     steps = sum(r.steps for r in run.curve.records)
@@ -556,6 +557,7 @@ def rl_evaluate(
     policy: Path = typer.Option(..., help="policy.zip from `nmrm rl train` or the agent node"),
     task: str = typer.Option(..., help="the task the policy was trained on"),
     checkpoint: Path = typer.Option(None, help="the reward model it was trained with (default: agent.json)"),
+    oracle: str = typer.Option(None, help="your own oracle that judges (default: agent.json's, else the task's)"),
     episodes: int = typer.Option(50, min=1, help="evaluation episodes"),
     seed: int = typer.Option(10**8, min=0, help="seed of the first evaluation episode"),
 ) -> None:
@@ -566,7 +568,8 @@ def rl_evaluate(
 
     _bad_input(check_task, task)
     try:
-        result = evaluate_agent(policy, task, checkpoint=checkpoint, episodes=episodes, seed=seed)
+        result = evaluate_agent(policy, task, checkpoint=checkpoint, episodes=episodes, seed=seed,
+                                oracle=oracle)
     except (CheckpointError, ValueError) as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(f"{task}, reward {result.reward}: {result.summary()}")

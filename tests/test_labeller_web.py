@@ -129,10 +129,10 @@ class WebNode:
         return "".join(self.lines)
 
 
-def play_episodes(n: int, seed: int = 0) -> None:
-    """env_sim plays n Key episodes (a random agent) once labeller_web subscribes."""
-    agent = start("agent", observe="observation", exit_with_upstream=True)
-    sim = start("env_sim", task="key", episodes=n, seed=seed, wait_for_nodes="[labeller_web]")
+def play_episodes(n: int, seed: int = 0, task: str = "key") -> None:
+    """env_sim plays n episodes of `task` (a random agent) once labeller_web subscribes."""
+    agent = start("agent", task=task, observe="observation", exit_with_upstream=True)
+    sim = start("env_sim", task=task, episodes=n, seed=seed, wait_for_nodes="[labeller_web]")
     for proc in (sim, agent):
         code, out = finish(proc, timeout=60)
         assert code == 0, out
@@ -269,3 +269,46 @@ def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
         capture.close()
     session = next(p for p in labels_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
     assert [(m.episode, m.return_value) for _, _, _, m in iter_decoded(session)] == [(0, 7.25)]
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
+                                             "apt when run as root)")
+def test_an_episode_of_your_own_task_is_plotted_dimension_by_dimension(ros_domain, tmp_path):
+    """A Gymnasium task (CartPole, episodes of varying length) has no arena: the page plots each of
+    its 4 state dimensions over the episode's steps with a cursor at the step shown, and takes
+    any number as its return. A screenshot goes to build/test_artefacts/."""
+    from playwright.sync_api import sync_playwright
+
+    task = "gym:CartPole-v1"
+    node = WebNode(tmp_path / "labels", task=task)
+    try:
+        play_episodes(3, task=task)
+        queue = node.wait_for_queue(3)
+        lengths = {e["length"] for e in queue}
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 1200, "height": 700})
+            errors: list = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(node.url)
+            page.wait_for_selector("#arena polyline.dim")
+            assert page.locator("#arena polyline.dim").count() == 4
+            first = queue[0]["length"]
+            assert len(page.get_attribute("#arena polyline.dim", "points").split()) == first + 1
+            assert page.text_content("#range") == "any number"
+            page.fill("#scrub", "3")
+            page.dispatch_event("#scrub", "input")
+            assert page.text_content("#step") == f"step 3 / {first}"
+            assert float(page.get_attribute("#arena line.cursor", "x1")) == pytest.approx(100 * 3 / first)
+            ARTEFACTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(ARTEFACTS / "labelling_page_your_own_task.png"))
+            page.fill("#return", "-1234.5")
+            page.click("#submit")
+            page.wait_for_selector("#history tr")
+            assert page.text_content("#history tr td:nth-child(2)") == "-1234.5"
+            assert errors == []
+            browser.close()
+    finally:
+        out = node.stop()
+    assert "labelled episode" in out, out
+    assert len(lengths) > 1, lengths  # CartPole's random episodes (seed 0) vary in length

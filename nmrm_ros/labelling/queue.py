@@ -31,9 +31,10 @@ class LabelError(ValueError):
 
 
 def return_range(task: str) -> tuple:
-    """(low, high) of the returns a label of `task` may take."""
+    """(low, high) of the returns a label of `task` may take; (None, None) for a task of the
+    user's (a task spec), whose range we do not know: any finite number."""
     task_info(task)  # validates the name
-    return RETURN_RANGES[task]
+    return RETURN_RANGES.get(task, (None, None))
 
 
 @dataclass
@@ -125,7 +126,7 @@ class LabelQueue:
     def validate(self, value) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise LabelError(f"a return must be a finite number, got {value!r}")
-        if not self.low <= value <= self.high:
+        if self.low is not None and not self.low <= value <= self.high:
             raise LabelError(f"return {value} is outside [{self.low:g}, {self.high:g}] for {self.task}")
         return float(value)
 

@@ -2,7 +2,8 @@
 
 Routes (JSON unless said; every one behind the access token when there is one):
   GET  /                      the page (static/page.html, page.js, page.css)
-  GET  /api/info              task, labeller, return range, the arena's zones, how the queue is ordered
+  GET  /api/info              task, labeller, return range ([null, null]: any number), the arena's
+                              zones (null: a task of the user's), how the queue is ordered
   GET  /api/queue             finished unlabelled episodes, in the order they are asked
   GET  /api/episode/{n}       one episode's states (L + 1, state size) and its label if any
   POST /api/label             {"episode": n, "return": x}: label (again: a correction)
@@ -38,8 +39,11 @@ def _error(status: int, message: str) -> web.Response:
     return web.json_response({"error": message}, status=status)
 
 
-def _arena(task: str) -> dict:
-    """What the page draws under a path: the arena's bounds and zones (x0, x1, y0, y1, kind)."""
+def _arena(task: str) -> dict | None:
+    """What the page draws under a path: the arena's bounds and zones (x0, x1, y0, y1, kind);
+    None for a task of the user's (the page then plots each state dimension over time)."""
+    if ":" in task:
+        return None
     if task == "lunar_lander":
         return {"bounds": [-1.5, 1.5, -0.2, 1.6], "zones": [[-0.2, 0.2, -0.05, 0.0, "pad"]],
                 "xy": [0, 1]}

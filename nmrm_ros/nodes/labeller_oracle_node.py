@@ -10,6 +10,10 @@ THE LABELLER CONTRACT (what a human-labelling node implements too; see README.md
 This oracle labeller also publishes, if `publish_oracle_steps`, one OracleStep per step t < L with
 the true h_{t+1} and r_t (for evaluation only).
 
+The oracle is the task's own, or `oracle` (a user's function of the trajectory so far; it gets
+actions None, since this node follows observations only). An episode on which it fails (raises,
+a wrong shape, NaN) is broken: logged in one line, not labelled.
+
 Observations are followed with the rule of `nmrm_ros.ros.episodes` (duplicates ignored, a gap or
 disorder breaks the episode); a state of the wrong size or with NaN breaks the episode too. Broken
 episodes are counted and logged, never labelled.
@@ -30,13 +34,14 @@ from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryReturn
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
 from ..datasets.label_noise import OnlineLabelSwapper
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, require_task, run_node)
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param, declare_parameters,
+                             exit_with_upstream, require_oracle, require_task, run_node)
 from ..ros.topics import OBSERVATION, ORACLE_STEP, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "task": Param("key", "task whose oracle labels the episodes"),
+    "oracle": ORACLE,
     "publish_oracle_steps": Param(True, "also publish per-step ground truth (OracleStep)"),
     "label_noise": Param("gaussian", "gaussian (label_noise_std) | swap (label_swap, swap_pool)"),
     "label_noise_std": Param(0.0, "label_noise gaussian: std of the noise added to each return", 0.0),
@@ -52,10 +57,9 @@ class LabellerOracleNode(Node):
         self.messages_received = 0
         super().__init__("labeller_oracle")
         p = declare_parameters(self, PARAMETERS)
-        from ..oracles import make_oracle
         self.info = require_task(p["task"])
         self.task = p["task"]
-        self.oracle = make_oracle(self.task)
+        self.oracle = require_oracle(self.task, p["oracle"])
         self.tracker = self.oracle.tracker()
         self.follower = EpisodeFollower()
         self.publish_steps = bool(p["publish_oracle_steps"])
@@ -107,7 +111,12 @@ class LabellerOracleNode(Node):
             self.return_pub.publish(out)
             self.labelled += 1
             return
-        reward, hidden = self.tracker.step(state)
+        try:
+            reward, hidden = self.tracker.step(state)
+        except ValueError as exc:  # a user's oracle that misbehaved on this episode (OracleError)
+            self.follower.break_episode(msg.episode)
+            self.log_broken(msg, str(exc))
+            return
         if self.publish_steps:
             step = OracleStep(episode=msg.episode, step=msg.step, hidden=to_float_list(hidden),
                               reward=float(reward))

@@ -13,7 +13,8 @@ terminal state an RL agent bootstraps from; its reward belongs to no transition.
 mode "model": the CSC / Instance / Embedding LSTM (or Instance NN) of `checkpoint`, stepped with
 the NumPy online stepper. An ensemble checkpoint serves the members' mean reward, their spread in
 `reward_std` / `return_std`, and the hidden state of its serving member (the best on validation). mode "oracle": the task's true hidden state and reward (the paper's
-oracle baselines), through the same graph.
+oracle baselines), through the same graph; `oracle` names a user's oracle function instead
+(`nmrm_ros.oracles.function_oracle`; an episode on which it fails is broken, logged in one line).
 
 Live reload (mode model): setting `checkpoint` while the node runs (`ros2 param set /reward_model
 checkpoint PATH`, or the trainer node after each retraining) loads and checks the new model at
@@ -40,8 +41,8 @@ from nmrm_msgs.msg import EnvObservation, RewardStep
 
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, live_parameter, require_task, run_node)
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param, declare_parameters,
+                             exit_with_upstream, live_parameter, require_oracle, require_task, run_node)
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
 
 PARAMETERS = {
@@ -49,6 +50,7 @@ PARAMETERS = {
     "mode": Param("model", "model | oracle"),
     "checkpoint": Param("", "MIL checkpoint (path to .pt/.json or their stem), mode model"),
     "task": Param("", "task; mode oracle: required; mode model: checked against the checkpoint"),
+    "oracle": ORACLE,
     "source": Param("", "id published in RewardStep.source (default: checkpoint name or 'oracle'); "
                         "kept across live reloads"),
     "served_state": Param("h_tanh_c", "mode model: the hidden state served, h_tanh_c ([h', tanh c'] of "
@@ -64,12 +66,10 @@ class RewardModelNode(Node):
         p = declare_parameters(self, PARAMETERS)
         mode = p["mode"]
         if mode == "oracle":
-            from ..oracles import make_oracle
-
             if not p["task"]:
                 raise NodeError("mode oracle needs the parameter task")
             self.info = require_task(p["task"])
-            self.stepper = make_oracle(p["task"]).tracker()
+            self.stepper = require_oracle(p["task"], p["oracle"]).tracker()
             self.source = p["source"] or "oracle"
         elif mode == "model":
             if not p["checkpoint"]:
@@ -147,7 +147,13 @@ class RewardModelNode(Node):
                 (self.stepper, self.source), self.pending = self.pending, None
                 self.get_logger().info(f"episode {msg.episode}: now serving {self.source}")
             self.stepper.reset()
-        reward, hidden = self.stepper.step(state)
+        try:
+            reward, hidden = self.stepper.step(state)
+        except ValueError as exc:  # a user's oracle that misbehaved on this episode (OracleError)
+            if self.follower.break_episode(msg.episode):
+                self.get_logger().error(f"episode {msg.episode} broken at step {msg.step}: {exc}; "
+                                        f"waiting for the next step 0")
+            return
         self.compute_s.append(time.perf_counter() - t0)
         if msg.terminated or msg.truncated:
             self.follower.finish()

@@ -53,7 +53,7 @@ def load_agent(policy: str | Path):
     raise ValueError(f"cannot load policy {policy}: {'; '.join(errors)}")
 
 
-def _reward_kind(model, task: str, checkpoint, meta: dict) -> tuple[str, object]:
+def _reward_kind(model, task: str, checkpoint, meta: dict, oracle: str = "") -> tuple[str, object]:
     from ..oracles import make_oracle
     from ..tasks import task_info
 
@@ -67,7 +67,7 @@ def _reward_kind(model, task: str, checkpoint, meta: dict) -> tuple[str, object]
     state = task_info(task).state_size
     if size == state:
         return "oracle-no-hidden", None
-    if size == state + make_oracle(task).hidden_size:
+    if size == state + make_oracle(task, oracle).hidden_size:
         return "oracle", None
     raise ValueError(f"the policy observes {size} values; task {task} states have {state}: give the "
                      f"checkpoint of the reward model it was trained with")
@@ -92,13 +92,15 @@ def served_state_of(model, task: str, checkpoint, meta: dict) -> str:
 
 
 def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, episodes: int = 50,
-                   seed: int = EVAL_SEED, reward: str | None = None, env=None) -> EvaluationResult:
+                   seed: int = EVAL_SEED, reward: str | None = None, env=None,
+                   oracle: str | None = None) -> EvaluationResult:
     """Run the greedy policy (`policy`: a .zip path or an SB3 model) for `episodes` episodes with
     episode seeds seed, seed + 1, ... and return its oracle returns and a random policy's.
 
     The observation is built as in training: with `checkpoint` the model's hidden state, else the
     reward kind recorded in the policy's agent.json (or inferred from its observation size).
     `env`: evaluate on this wrapped env instead (its `info` must carry "oracle_return").
+    `oracle`: a user's oracle function that judges (default: agent.json's, else the task's).
     """
     from .wrappers import make_reward_env
 
@@ -108,12 +110,13 @@ def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, epis
         model, meta = load_agent(policy)
     if meta.get("task") and meta["task"] != task:
         raise ValueError(f"the policy was trained on task {meta['task']!r}, not {task!r}")
+    oracle = (meta.get("oracle") or "") if oracle is None else oracle
     if reward is None:
-        reward, checkpoint = _reward_kind(model, task, checkpoint, meta)
+        reward, checkpoint = _reward_kind(model, task, checkpoint, meta, oracle)
     if env is None:
         served = served_state_of(model, task, checkpoint, meta) if reward == "model" else DEFAULT_SERVED_STATE
         env = make_reward_env(task, reward, checkpoint if reward == "model" else None, seed=seed,
-                              served=served)
+                              served=served, oracle=oracle)
     if env.observation_space.shape != model.observation_space.shape:
         raise ValueError(f"the policy observes {model.observation_space.shape}, the {reward} env gives "
                          f"{env.observation_space.shape}")

@@ -129,7 +129,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
                 episodes: int | None = None, seed: int = 0, out: str | Path | None = None,
                 env_seed: int | None = None, n_envs: int = 1, progress: bool = True,
                 config: str | Path | None = None, on_episode=None, served: str = DEFAULT_SERVED_STATE,
-                **overrides) -> AgentRun:
+                oracle: str = "", **overrides) -> AgentRun:
     """Train the paper's agent for `task` on reward `reward` ("model" with `checkpoint`, "oracle",
     "oracle-no-hidden") for `episodes` episodes (default: the config's).
 
@@ -137,7 +137,9 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     with `env_seed + i * 10**6 + e` (default env_seed = seed), as an env_sim node with
     `seed:=env_seed` does for env 0. served: what of the model's recurrent state the agent observes
     (reward "model": "h_tanh_c" = [h', tanh c'], "h_c" = [h', c'], "h" = h' only;
-    `nmrm_ros.mil.served_state`). overrides:
+    `nmrm_ros.mil.served_state`). oracle: a user's oracle function ("<module>:<function>") that
+    judges every episode (and is the reward of "oracle" / "oracle-no-hidden"); default the task's.
+    overrides:
     settings of config/rl.yaml (e.g. learning_starts).
     """
     import torch
@@ -155,7 +157,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     episodes = int(cfg["episodes"])
     env_seed = seed if env_seed is None else int(env_seed)
     seeds = [env_seed + i * 10**6 for i in range(n_envs)]
-    envs = [make_reward_env(task, reward, checkpoint, seed=s, served=served) for s in seeds]
+    envs = [make_reward_env(task, reward, checkpoint, seed=s, served=served, oracle=oracle) for s in seeds]
     vec = DummyVecEnv([lambda e=e: Monitor(e) for e in envs])
     model = make_algorithm(vec, algo, cfg, info.episode_length, seed=seed)
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
@@ -171,7 +173,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
         save_agent(model, callback.curve, out_dir, {
             "task": task, "reward": reward, "algorithm": algo,
             "checkpoint": str(checkpoint) if checkpoint is not None else None,
-            "served_state": served if reward == "model" else None, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
+            "served_state": served if reward == "model" else None, "oracle": oracle, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
             "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
             "config": cfg})
     return AgentRun(model, callback.curve, seconds, out_dir)

@@ -71,7 +71,7 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
                  hidden_size: int) -> None:
         super().__init__(env)
         self.stepper = stepper
-        self.oracle = OracleTracker(make_oracle(task) if isinstance(task, str) else task)
+        self.oracle = (make_oracle(task) if isinstance(task, str) else task).tracker()
         self.augment = augment and hidden_size > 0
         base = env.observation_space
         if self.augment:
@@ -118,7 +118,7 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
     """
 
     def __init__(self, env: gym.Env, model, task: str | None = None,
-                 served: str = DEFAULT_SERVED_STATE) -> None:
+                 served: str = DEFAULT_SERVED_STATE, oracle: str = "") -> None:
         from ..mil import OnlineRewardModel, load_checkpoint
 
         if isinstance(model, (str, Path)):
@@ -130,7 +130,8 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
         if online.input_size != env.observation_space.shape[0]:
             raise ValueError(f"the model takes states of size {online.input_size}, the env gives "
                              f"{env.observation_space.shape[0]}")
-        super().__init__(env, online, task, augment=True, hidden_size=online.served_size)
+        judge = make_oracle(task, oracle) if oracle else task
+        super().__init__(env, online, judge, augment=True, hidden_size=online.served_size)
 
 
 class OracleRewardWrapper(NonMarkovianRewardWrapper):
@@ -138,14 +139,14 @@ class OracleRewardWrapper(NonMarkovianRewardWrapper):
     or the raw state only (`hidden=False`). The oracle's hidden state is appended as it is
     (unscaled, e.g. Timer's time index 1..100), as in the paper."""
 
-    def __init__(self, env: gym.Env, task: str, hidden: bool = True) -> None:
-        oracle = make_oracle(task)
-        super().__init__(env, OracleTracker(oracle), task, augment=hidden, hidden_size=oracle.hidden_size)
+    def __init__(self, env: gym.Env, task: str, hidden: bool = True, oracle: str = "") -> None:
+        judge = make_oracle(task, oracle)
+        super().__init__(env, judge.tracker(), judge, augment=hidden, hidden_size=judge.hidden_size)
 
 
 def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None,
                     seed: int = 0, continuous: bool = False,
-                    served: str = DEFAULT_SERVED_STATE) -> gym.Env:
+                    served: str = DEFAULT_SERVED_STATE, oracle: str = "") -> gym.Env:
     """A task env with episode seeds `seed + e` and the reward of `reward` (one of REWARD_KINDS).
 
     reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`); `served`: what of the
@@ -159,7 +160,7 @@ def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None
     if reward == "model":
         if checkpoint is None:
             raise ValueError("reward 'model' needs a checkpoint")
-        return RewardModelWrapper(env, checkpoint, task=task, served=served)
+        return RewardModelWrapper(env, checkpoint, task=task, served=served, oracle=oracle)
     if checkpoint is not None:
         raise ValueError(f"reward {reward!r} takes no checkpoint")
-    return OracleRewardWrapper(env, task, hidden=reward == "oracle")
+    return OracleRewardWrapper(env, task, hidden=reward == "oracle", oracle=oracle)

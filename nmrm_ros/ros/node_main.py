@@ -287,6 +287,20 @@ def require_task(task: str):
         raise NodeError(str(exc)) from None
 
 
+ORACLE = Param("", "your own oracle function, <module>:<function> or <file.py>:<function> "
+                  "(nmrm_ros.oracles.function_oracle; '' = the task's own)")
+
+
+def require_oracle(task: str, oracle: str = ""):
+    """The oracle of `task` (or the user's `oracle` function), or a NodeError saying why not."""
+    from ..oracles import make_oracle
+
+    try:
+        return make_oracle(task, oracle)
+    except ValueError as exc:
+        raise NodeError(str(exc)) from None
+
+
 def live_parameter(node, table: dict, name: str, apply: Callable[[str], str]) -> None:
     """Let parameter `name` change while `node` runs: `apply(new value)` returns '' (accepted) or
     why not (refused: `ros2 param set` prints the reason, and the node logs it). Every other

@@ -1,5 +1,5 @@
-// The labelling page: the queue, an episode's animated path over the arena, the label form and
-// the labels given. Every value from the server is written with textContent or as an SVG
+// The labelling page: the queue, an episode's animated path over the arena (or, for your own
+// task, its state dimensions over time), the label form and the labels given. Every value from the server is written with textContent or as an SVG
 // attribute, never parsed as HTML.
 "use strict";
 const token = new URLSearchParams(location.search).get("token") || "";
@@ -43,7 +43,48 @@ function drawArena() {
   return svg;
 }
 
+// A task without an arena (your own task): each state dimension over time, one band per
+// dimension (scaled to its range in this episode), with a cursor at the step shown.
+const MAX_DIMS = 12;
+function drawStates() {
+  const svg = document.getElementById("arena");
+  svg.replaceChildren();
+  if (!current) return;
+  const dims = Math.min(current.states[0].length, MAX_DIMS), band = 100 / dims, steps = current.length;
+  for (let d = 0; d < dims; d++) {
+    const values = current.states.map((s) => s[d]);
+    const lo = Math.min(...values), hi = Math.max(...values), span = hi - lo || 1;
+    const y = (v) => d * band + band * 0.9 - band * 0.8 * (v - lo) / span;
+    const line = document.createElementNS(SVG, "polyline");
+    line.setAttribute("class", "dim");
+    line.setAttribute("points", values.map((v, t) => `${100 * t / Math.max(steps, 1)},${y(v)}`).join(" "));
+    const t = document.createElementNS(SVG, "title");
+    t.textContent = `state[${d}]: ${lo.toPrecision(3)} .. ${hi.toPrecision(3)}`;
+    line.appendChild(t);
+    const name = document.createElementNS(SVG, "text");
+    name.setAttribute("x", 0.5); name.setAttribute("y", d * band + 3); name.setAttribute("class", "dim-name");
+    name.textContent = `s[${d}] = ${values[frame].toPrecision(3)}`;
+    svg.append(line, name);
+  }
+  const cursor = document.createElementNS(SVG, "line");
+  const x = 100 * frame / Math.max(steps, 1);
+  cursor.setAttribute("class", "cursor");
+  cursor.setAttribute("x1", x); cursor.setAttribute("x2", x); cursor.setAttribute("y1", 0); cursor.setAttribute("y2", 100);
+  svg.appendChild(cursor);
+}
+
 function drawEpisode() {
+  if (!info.arena) {
+    drawStates();
+  } else {
+    drawPath();
+  }
+  if (!current) return;
+  document.getElementById("scrub").value = frame;
+  document.getElementById("step").textContent = `step ${frame} / ${current.length}`;
+}
+
+function drawPath() {
   const svg = drawArena();
   if (!current) return;
   const [ix, iy] = info.arena.xy;
@@ -56,8 +97,6 @@ function drawEpisode() {
   const dot = document.createElementNS(SVG, "circle");
   dot.setAttribute("class", "agent"); dot.setAttribute("cx", cx); dot.setAttribute("cy", cy); dot.setAttribute("r", 1.5);
   svg.appendChild(dot);
-  document.getElementById("scrub").value = frame;
-  document.getElementById("step").textContent = `step ${frame} / ${current.length}`;
 }
 
 function stop() { if (timer) { clearInterval(timer); timer = null; } }
@@ -131,14 +170,18 @@ async function main() {
   document.getElementById("ordering").textContent = `ordered: ${info.ordering}`;
   const [lo, hi] = info.range;
   const input = document.getElementById("return");
-  input.min = lo; input.max = hi;
-  document.getElementById("range").textContent = `between ${lo} and ${hi}`;
+  if (lo === null) {
+    document.getElementById("range").textContent = "any number";
+  } else {
+    input.min = lo; input.max = hi;
+    document.getElementById("range").textContent = `between ${lo} and ${hi}`;
+  }
   document.getElementById("label-form").addEventListener("submit", submit);
   document.getElementById("skip").addEventListener("click", skip);
   document.getElementById("play").addEventListener("click", play);
   document.getElementById("pause").addEventListener("click", stop);
   document.getElementById("scrub").addEventListener("input", (e) => { stop(); frame = Number(e.target.value); drawEpisode(); });
-  drawArena();
+  if (info.arena) drawArena();
   await refresh(true);
   setInterval(() => refresh(!current).catch(showError), 2000);
 }

@@ -1,0 +1,175 @@
+"""The "your own task" example, measured: CartPole with a non-Markovian oracle of its own.
+
+    .venv/bin/python bench/your_own_task.py models --repeats 5 --jobs 2
+    .venv/bin/python bench/your_own_task.py agents --seeds 0 1 2 --jobs 2
+    .venv/bin/python bench/your_own_task.py --report
+
+Task `gym:CartPole-v1,max_episode_steps=200`; oracle examples/cartpole_crossings.py:oracle (a step
+pays 1 once the cart has crossed the centre line in both directions). Datasets are screened by
+return bins from random-policy pools (nmrm_ros.datasets.return_screening); episodes vary in length.
+
+models: repeat r trains the CSC LSTM and the Markovian Instance Space NN (config your_own_task:
+the mean of 3 models, member j weight seed r + 1000 j) on split r of a dataset of data seed r
+(N episodes), scored on its test split and on a held-out dataset of data seed 999.
+agents: double DQN (config/rl.yaml, 400 episodes) on the repeat-0 CSC model's reward (served
+state: the default), on the oracle's reward with its hidden state, and without it; agent seeds as
+given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm rl evaluate`).
+
+Resumes: every run is a JSON file in bench/results/your_own_task/ and is skipped when present.
+"""
+
+from __future__ import annotations
+
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
+import argparse
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from reproduce_tables import mean_sem
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results" / "your_own_task"
+DATA = ROOT / "runs" / "your_own_task"
+TASK = "gym:CartPole-v1,max_episode_steps=200"
+ORACLE = str(ROOT / "examples" / "cartpole_crossings.py") + ":oracle"
+N, HELD_OUT_SEED, HELD_OUT_N = 2000, 999, 1000
+ARCHS = ("csc_lstm", "instance_nn")
+REWARDS = ("model", "oracle", "oracle-no-hidden")
+
+
+def dataset(n: int, seed: int):
+    """The screened dataset of data seed `seed`, cached in runs/your_own_task/."""
+    from nmrm_ros.datasets import TrajectoryDataset, generate_screened
+
+    path = DATA / f"cartpole_n{n}_s{seed}.npz"
+    if path.is_file():
+        return TrajectoryDataset.load(path)
+    ds = generate_screened(TASK, n, seed=seed, oracle=ORACLE)
+    DATA.mkdir(parents=True, exist_ok=True)
+    ds.save(path)
+    return ds
+
+
+def checkpoint_path(arch: str, r: int) -> Path:
+    return DATA / "models" / f"{arch}_r{r}"
+
+
+def run_model(job: tuple) -> dict:
+    arch, r = job
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.mil import evaluate, load_train_config, model_config, save_checkpoint
+    from nmrm_ros.mil.data import split_indices
+    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
+    from nmrm_ros.mil.training import train_ensemble
+
+    ds, held = dataset(N, r), dataset(HELD_OUT_N, HELD_OUT_SEED)
+    cfg = load_train_config(TASK, seed=r)
+    seeds = [r + 1000 * j for j in range(cfg.members)]
+    train, val, test = split_indices(len(ds), r)
+    ens = init_ensemble(model_config(arch, TASK, ds.state_size, dropout=cfg.dropout,
+                                     hidden_size=cfg.hidden_size), seeds)
+    t0 = time.perf_counter()
+    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
+    seconds = time.perf_counter() - t0
+    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
+    on_test, on_held = evaluate(mean, ds.subset(test)), evaluate(mean, held)
+    path = checkpoint_path(arch, r)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(ens, path, task=TASK, ensemble={"members": len(seeds), "seeds": seeds, "serving_member": 0})
+    res = {"arch": arch, "repeat": r, "data_seed": r, "n": N, "weight_seeds": seeds,
+           "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
+           "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],
+           "held_reward_mse": on_held["reward_mse"], "epochs": result.epochs_run,
+           "best_epochs": result.best_epochs, "seconds": seconds, "checkpoint": str(path)}
+    (RESULTS / f"model_{arch}_r{r}.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def run_agent(job: tuple) -> dict:
+    reward, seed = job
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.rl import evaluate_agent, train_agent
+
+    checkpoint = checkpoint_path("csc_lstm", 0) if reward == "model" else None
+    out = DATA / "agents" / f"{reward}_s{seed}"
+    t0 = time.perf_counter()
+    run = train_agent(TASK, reward, checkpoint=checkpoint, seed=seed, out=out, progress=False, oracle=ORACLE)
+    seconds = time.perf_counter() - t0
+    result = evaluate_agent(out / "policy.zip", TASK, checkpoint=checkpoint)
+    res = {"reward": reward, "seed": seed, "greedy_oracle_return": float(result.returns.mean()),
+           "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
+           "seconds": seconds, "policy": str(out / "policy.zip")}
+    (RESULTS / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def report() -> str:
+    lines = [f"# bench/your_own_task.py: task {TASK}, oracle examples/cartpole_crossings.py:oracle",
+             f"# models: repeat r on data seed r ({N} episodes, split r); held-out: {HELD_OUT_N} episodes of "
+             f"data seed {HELD_OUT_SEED}; mean ± SEM [worst]",
+             f"{'model':12s} {'n':>2s} {'held-out return MSE':>26s} {'held-out reward MSE':>26s} "
+             f"{'test return MSE':>24s} {'s/run':>6s}"]
+    for arch in ARCHS:
+        runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob(f"model_{arch}_r*.json"))]
+        if not runs:
+            continue
+        cells = []
+        for key in ("held_return_mse", "held_reward_mse", "test_return_mse"):
+            v = [r[key] for r in runs]
+            m, s = mean_sem(v)
+            cells.append(f"{m:9.4f} ± {s:7.4f} [{max(v):8.4f}]")
+        lines.append(f"{arch:12s} {len(runs):2d} {' '.join(cells)} {np.mean([r['seconds'] for r in runs]):6.0f}")
+    lines.append("# agents: greedy oracle return over 50 episodes (seeds 10^8..); mean [worst] over agent seeds")
+    for reward in REWARDS:
+        runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob(f"agent_{reward}_s*.json"))]
+        if not runs:
+            continue
+        v = [r["greedy_oracle_return"] for r in runs]
+        lines.append(f"{reward:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
+                     f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
+                     f"{np.mean([r['seconds'] for r in runs]):.0f} s/run)")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("what", nargs="?", choices=("models", "agents"))
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--report", action="store_true")
+    args = parser.parse_args()
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    if args.what == "models":
+        dataset(HELD_OUT_N, HELD_OUT_SEED)
+        jobs = [(a, r) for r in range(args.repeats) for a in ARCHS
+                if not (RESULTS / f"model_{a}_r{r}.json").is_file()]
+        fn = run_model
+    elif args.what == "agents":
+        if not (RESULTS / "model_csc_lstm_r0.json").is_file():
+            raise SystemExit("train the models first (at least repeat 0): bench/your_own_task.py models")
+        jobs = [(w, s) for s in args.seeds for w in REWARDS if not (RESULTS / f"agent_{w}_s{s}.json").is_file()]
+        fn = run_agent
+    else:
+        jobs, fn = [], None
+    if jobs:
+        print(f"# {len(jobs)} runs (finished ones skipped)", flush=True)
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for res in pool.map(fn, jobs):
+                print(f"  {json.dumps({k: v for k, v in res.items() if not isinstance(v, (list, dict))})}", flush=True)
+    text = report()
+    print(text)
+    (RESULTS / "table.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
