@@ -93,6 +93,28 @@ def test_checkpoint_round_trip_serves_the_same_state(tmp_path):
     assert OnlineRewardModel(loaded, served="h").served_size == 2
 
 
+def test_a_checkpoint_serves_what_its_training_config_says(tmp_path):
+    """served_state in config/mil_training.yaml (Moving: h) is recorded in the checkpoint and is
+    what the wrapper serves unless told otherwise; a node's served_state:='' takes it too."""
+    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil.served_state import checkpoint_served_state
+    from nmrm_ros.rl.wrappers import make_reward_env
+
+    assert load_train_config("moving").served_state == "h"
+    assert load_train_config("key").served_state == "h_tanh_c"
+    model = hidden_memory_charger_model()
+    save_checkpoint(model, tmp_path / "h", task="charger", train_config={"served_state": "h"})
+    save_checkpoint(model, tmp_path / "old", task="charger", train_config={})
+    assert checkpoint_served_state(load_checkpoint(tmp_path / "old")[1]) == "h_tanh_c"
+    with pytest.raises(ValueError, match="unknown served state 'c'"):
+        checkpoint_served_state({"train_config": {"served_state": "c"}})
+    assert make_reward_env("charger", "model", tmp_path / "h").observation_space.shape == (4,)
+    assert make_reward_env("charger", "model", tmp_path / "h", served="h_c").observation_space.shape == (6,)
+    assert make_reward_env("charger", "model", tmp_path / "old").observation_space.shape == (6,)
+    with pytest.raises(ValueError, match="training setting served_state must be"):
+        load_train_config("key", served_state="c")
+
+
 def _nmrm(*args):
     import subprocess
 

@@ -77,6 +77,7 @@ class TrainConfig:
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
     reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
     members: int = 1  # models `nmrm train` trains as one ensemble (shared split) unless --ensemble is given
+    served_state: str = "h_tanh_c"  # what the model serves by default (recorded in its checkpoint; mil.served_state)
     plateau_patience: int = 10  # schedule plateau: epochs without a new best before the lr is cut
     plateau_factor: float = 0.5  # schedule plateau: the cut
 
@@ -111,7 +112,8 @@ class TrainConfig:
                  ("label_swap", 0 <= self.label_swap <= 1, "in [0, 1]"),
                  ("reward_l1", self.reward_l1 >= 0, ">= 0"), ("members", self.members >= 1, ">= 1"),
                  ("plateau_patience", self.plateau_patience >= 1, ">= 1"),
-                 ("plateau_factor", 0 < self.plateau_factor < 1, "in (0, 1)")]
+                 ("plateau_factor", 0 < self.plateau_factor < 1, "in (0, 1)"),
+                 ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h")]
         for name, ok, allowed in rules:
             if not ok:
                 raise ValueError(f"training setting {name} must be {allowed}, got {getattr(self, name)!r}")

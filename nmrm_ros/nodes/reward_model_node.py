@@ -53,8 +53,9 @@ PARAMETERS = {
     "oracle": ORACLE,
     "source": Param("", "id published in RewardStep.source (default: checkpoint name or 'oracle'); "
                         "kept across live reloads"),
-    "served_state": Param("h_tanh_c", "mode model: the hidden state served, h_tanh_c ([h', tanh c'] of "
-                                      "the LSTM, 2k values), h_c ([h', c']) or h (h' only, k values, as the paper)"),
+    "served_state": Param("", "mode model: the hidden state served, h_tanh_c ([h', tanh c'] of the LSTM, "
+                              "2k values), h_c ([h', c']) or h (h' only, k values, as the paper); '' = the "
+                              "checkpoint's (its training config's served_state), kept across live reloads"),
 }
 
 
@@ -76,10 +77,10 @@ class RewardModelNode(Node):
                 raise NodeError("mode model needs the parameter checkpoint")
             from ..mil.served_state import SERVED_STATES
 
-            if p["served_state"] not in SERVED_STATES:
-                raise NodeError(f"served_state must be one of {', '.join(SERVED_STATES)}, "
-                                f"got {p['served_state']!r}")
-            self.served = p["served_state"]
+            if p["served_state"] and p["served_state"] not in SERVED_STATES:
+                raise NodeError(f"served_state must be one of {', '.join(SERVED_STATES)} or '' (the "
+                                f"checkpoint's), got {p['served_state']!r}")
+            self.served = p["served_state"] or None  # None: the first checkpoint's, then kept
             stepper, self.info, error = self._load(p["checkpoint"], p["task"] or None)
             if error:
                 raise NodeError(error)
@@ -98,7 +99,8 @@ class RewardModelNode(Node):
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
-        self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}")
+        served = f", serving [s_t, {self.served}]" if mode == "model" else ""
+        self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}{served}")
 
     def _load(self, path: str, task: str | None):
         """(online stepper, task info, '') of a checkpoint, or (None, None, why not)."""
@@ -112,6 +114,13 @@ class RewardModelNode(Node):
         if model.config.input_size != info.state_size:
             return None, None, (f"checkpoint takes states of size {model.config.input_size}, task "
                                 f"{meta['task']} has {info.state_size}")
+        if self.served is None:
+            from ..mil.served_state import checkpoint_served_state
+
+            try:
+                self.served = checkpoint_served_state(meta)
+            except ValueError as exc:
+                return None, None, f"checkpoint {path}: {exc}"
         return OnlineRewardModel(model, served=self.served), info, ""
 
     def _reload(self, value) -> str:

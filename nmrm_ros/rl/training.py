@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from ..mil.served_state import DEFAULT_SERVED_STATE
 
 CURVE_FIELDS = ("episode", "oracle_return", "learnt_return", "steps", "wall_time")
 
@@ -128,7 +127,7 @@ class AgentRun:
 def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
                 episodes: int | None = None, seed: int = 0, out: str | Path | None = None,
                 env_seed: int | None = None, n_envs: int = 1, progress: bool = True,
-                config: str | Path | None = None, on_episode=None, served: str = DEFAULT_SERVED_STATE,
+                config: str | Path | None = None, on_episode=None, served: str | None = None,
                 oracle: str = "", **overrides) -> AgentRun:
     """Train the paper's agent for `task` on reward `reward` ("model" with `checkpoint`, "oracle",
     "oracle-no-hidden") for `episodes` episodes (default: the config's).
@@ -136,8 +135,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     seed: SB3's seed (weights, exploration, replay sampling); env_seed: episode e of env i resets
     with `env_seed + i * 10**6 + e` (default env_seed = seed), as an env_sim node with
     `seed:=env_seed` does for env 0. served: what of the model's recurrent state the agent observes
-    (reward "model": "h_tanh_c" = [h', tanh c'], "h_c" = [h', c'], "h" = h' only;
-    `nmrm_ros.mil.served_state`). oracle: a user's oracle function ("<module>:<function>") that
+    (reward "model": "h_tanh_c" = [h', tanh c'], "h_c" = [h', c'], "h" = h' only; None = the
+    checkpoint's own; `nmrm_ros.mil.served_state`). oracle: a user's oracle function ("<module>:<function>") that
     judges every episode (and is the reward of "oracle" / "oracle-no-hidden"); default the task's.
     overrides:
     settings of config/rl.yaml (e.g. learning_starts).
@@ -158,6 +157,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     env_seed = seed if env_seed is None else int(env_seed)
     seeds = [env_seed + i * 10**6 for i in range(n_envs)]
     envs = [make_reward_env(task, reward, checkpoint, seed=s, served=served, oracle=oracle) for s in seeds]
+    if reward == "model":
+        served = envs[0].served  # what the checkpoint serves where `served` was None
     vec = DummyVecEnv([lambda e=e: Monitor(e) for e in envs])
     model = make_algorithm(vec, algo, cfg, info.episode_length, seed=seed)
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset

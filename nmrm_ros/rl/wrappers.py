@@ -25,7 +25,6 @@ from typing import Protocol
 import gymnasium as gym
 import numpy as np
 
-from ..mil.served_state import DEFAULT_SERVED_STATE
 from ..oracles import Oracle, OracleTracker, make_oracle
 
 REWARD_KINDS = ("model", "oracle", "oracle-no-hidden")
@@ -113,17 +112,21 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
     """Observation [s_t, served_{t+1}] and reward r'_t from a trained MIL model, stepped online.
 
     model: a `MILRewardModel` or a checkpoint path (its task must be the env's); served: what of
-    the LSTM's state is observed, "h_tanh_c" ([h', tanh c'], default), "h_c" ([h', c']) or "h"
-    (h' only, the paper's choice; `nmrm_ros.mil.served_state`).
+    the LSTM's state is observed, "h_tanh_c" ([h', tanh c']), "h_c" ([h', c']) or "h" (h' only,
+    the paper's choice; `nmrm_ros.mil.served_state`); None: the checkpoint's own (its training
+    config's served_state), else h_tanh_c.
     """
 
     def __init__(self, env: gym.Env, model, task: str | None = None,
-                 served: str = DEFAULT_SERVED_STATE, oracle: str = "") -> None:
+                 served: str | None = None, oracle: str = "") -> None:
         from ..mil import OnlineRewardModel, load_checkpoint
+        from ..mil.served_state import checkpoint_served_state
 
+        meta: dict = {}
         if isinstance(model, (str, Path)):
             model, meta = load_checkpoint(model, task=task)
             task = task or meta["task"]
+        served = served or checkpoint_served_state(meta)
         if task is None:
             raise ValueError("RewardModelWrapper needs the task (for the oracle's judgement)")
         online = OnlineRewardModel(model, served=served)
@@ -132,6 +135,7 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
                              f"{env.observation_space.shape[0]}")
         judge = make_oracle(task, oracle) if oracle else task
         super().__init__(env, online, judge, augment=True, hidden_size=online.served_size)
+        self.served = served
 
 
 class OracleRewardWrapper(NonMarkovianRewardWrapper):
@@ -146,7 +150,7 @@ class OracleRewardWrapper(NonMarkovianRewardWrapper):
 
 def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None,
                     seed: int = 0, continuous: bool = False,
-                    served: str = DEFAULT_SERVED_STATE, oracle: str = "") -> gym.Env:
+                    served: str | None = None, oracle: str = "") -> gym.Env:
     """A task env with episode seeds `seed + e` and the reward of `reward` (one of REWARD_KINDS).
 
     reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`); `served`: what of the
