@@ -15,7 +15,8 @@ from nmrm_ros.datasets.return_screening import balanced_keep, return_bins, scree
 from nmrm_ros.oracles import OracleError, make_oracle
 
 CARTPOLE = "gym:CartPole-v1"
-EXAMPLE = str(Path(__file__).resolve().parents[1] / "examples" / "cartpole_crossings.py") + ":oracle"
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = str(ROOT / "examples" / "cartpole_crossings.py") + ":oracle"
 
 
 @pytest.fixture
@@ -141,7 +142,12 @@ def _nmrm(*args, timeout=300):
                           timeout=timeout)
 
 
-def test_your_own_task_from_dataset_to_a_trained_model(tmp_path):
+def test_your_own_task_from_dataset_to_an_agent_learning_through_the_graph(ros_domain, tmp_path):
+    """The README's path for your own task: screened bag -> CSC model -> served through the graph
+    (learn.launch.yaml: env_sim, reward_model, the user's oracle labelling, an agent learning, a
+    recorder) -> the recorded bag, whose episodes vary in length, trains a model again."""
+    from nmrm_ros.bags import load_bag_dataset
+
     bag = tmp_path / "cartpole_bag"
     res = _nmrm("dataset", "generate", "--task", CARTPOLE, "--oracle", EXAMPLE, "--episodes", 60,
                 "--out", bag)
@@ -150,7 +156,18 @@ def test_your_own_task_from_dataset_to_a_trained_model(tmp_path):
     res = _nmrm("train", "--bag", bag, "--out", tmp_path / "m", "--epochs", 2, "--ensemble", 1)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "training csc_lstm on gym:CartPole-v1: 60 trajectories" in res.stdout, res.stdout
-    assert (tmp_path / "m.pt").is_file()
+    learn = tmp_path / "learn"
+    res = _nmrm("launch", ROOT / "launch_scripts" / "learn.launch.yaml", f"task:={CARTPOLE}", f"oracle:={EXAMPLE}", "mode:=model",
+                f"checkpoint:={tmp_path / 'm'}", "episodes:=12", f"out:={learn}", timeout=240)
+    assert res.returncode == 0 and "all 5 node(s) exited cleanly" in res.stdout, res.stdout + res.stderr
+    assert "labelled 12 episode(s), 0 broken" in res.stdout, res.stdout
+    assert (learn / "policy" / "policy.zip").is_file()
+    ds, _ = load_bag_dataset([learn / "bag"])
+    assert len(ds) == 12 and ds.lengths.min() < ds.lengths.max(), ds.lengths
+    np.testing.assert_allclose(ds.returns, make_oracle(CARTPOLE, EXAMPLE).label(ds.states, None, ds.lengths).returns)
+    res = _nmrm("train", "--bag", learn / "bag", "--out", tmp_path / "m2", "--epochs", 1, "--ensemble", 1,
+                "--split-seed", 1)
+    assert res.returncode == 0, res.stdout + res.stderr
 
 
 @pytest.mark.parametrize("args,message", [
