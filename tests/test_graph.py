@@ -198,6 +198,12 @@ def test_reward_model_serves_an_ensemble(capture, tmp_path):
     ("reward_model", {"mode": "oracle"}, "needs the parameter task"),
     ("reward_model", {"mode": "model", "checkpoint": "/x", "served_state": "c"}, "served_state must be one of h_tanh_c, h_c, h"),
     ("agent", {"policy": "sb3", "policy_path": "/nonexistent.zip"}, "existing policy_path"),
+    ("env_sim", {"task": "key", "render": True}, "task 'key' renders no frames"),
+    ("env_sim", {"task": "gym:CartPole-v1", "render": True, "render_format": "gif"}, "render_format must be one of jpeg, png"),
+    ("env_sim", {"task": "gym:CartPole-v1", "render": True, "render_quality": 99}, "render_quality must be in 1..95"),
+    ("labeller_oracle", {"task": "gym:CartPole-v1"}, "has no oracle of ours: give your own"),
+    ("labeller_oracle", {"task": "gym:CartPole-v1", "oracle": "/nope.py:f"}, "oracle '/nope.py:f': no file /nope.py"),
+    ("reward_model", {"mode": "oracle", "task": "key", "oracle": "os:sep"}, "is a str, not a function"),
 ])
 def test_bad_configuration_exits_with_message(ros_domain, node, params, message):
     code, out = finish(start(node, **params), timeout=30)

@@ -129,10 +129,10 @@ class WebNode:
         return "".join(self.lines)
 
 
-def play_episodes(n: int, seed: int = 0, task: str = "key") -> None:
+def play_episodes(n: int, seed: int = 0, task: str = "key", **sim_params) -> None:
     """env_sim plays n episodes of `task` (a random agent) once labeller_web subscribes."""
     agent = start("agent", task=task, observe="observation", exit_with_upstream=True)
-    sim = start("env_sim", task=task, episodes=n, seed=seed, wait_for_nodes="[labeller_web]")
+    sim = start("env_sim", task=task, episodes=n, seed=seed, wait_for_nodes="[labeller_web]", **sim_params)
     for proc in (sim, agent):
         code, out = finish(proc, timeout=60)
         assert code == 0, out
@@ -273,16 +273,17 @@ def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
                                              "apt when run as root)")
-def test_an_episode_of_your_own_task_is_plotted_dimension_by_dimension(ros_domain, tmp_path):
+def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, tmp_path):
     """A Gymnasium task (CartPole, episodes of varying length) has no arena: the page plots each of
-    its 4 state dimensions over the episode's steps with a cursor at the step shown, and takes
-    any number as its return. A screenshot goes to build/test_artefacts/."""
+    its 4 state dimensions over the episode's steps with a cursor at the step shown, plays the
+    frames env_sim rendered (render:=true, every 2nd step) as a video under the same controls,
+    and takes any number as its return. A screenshot goes to build/test_artefacts/."""
     from playwright.sync_api import sync_playwright
 
     task = "gym:CartPole-v1"
     node = WebNode(tmp_path / "labels", task=task)
     try:
-        play_episodes(3, task=task)
+        play_episodes(3, task=task, render=True, render_every=2)
         queue = node.wait_for_queue(3)
         lengths = {e["length"] for e in queue}
         with sync_playwright() as pw:
@@ -300,6 +301,12 @@ def test_an_episode_of_your_own_task_is_plotted_dimension_by_dimension(ros_domai
             page.dispatch_event("#scrub", "input")
             assert page.text_content("#step") == f"step 3 / {first}"
             assert float(page.get_attribute("#arena line.cursor", "x1")) == pytest.approx(100 * 3 / first)
+            frame = page.locator("#frame")
+            assert frame.is_visible() and frame.get_attribute("data-step") == "2"  # frames at 0, 2, 4, ...
+            page.wait_for_function("document.getElementById('frame').complete")
+            assert page.evaluate("document.getElementById('frame').naturalWidth") == 240
+            status, body, headers = node.request(f"/api/episode/{queue[0]['episode']}")
+            assert body["frames"] == sorted(set(range(0, first + 1, 2)) | {first}), body["frames"]
             ARTEFACTS.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(ARTEFACTS / "labelling_page_your_own_task.png"))
             page.fill("#return", "-1234.5")

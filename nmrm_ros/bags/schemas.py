@@ -16,6 +16,8 @@ from pathlib import Path
 from ..ros.ament_paths import share_dir as _share_dir
 
 NMRM_TYPES = ("EnvObservation", "AgentAction", "RewardStep", "TrajectoryReturn", "OracleStep")
+#: standard ROS 2 types our graph publishes too: their .msg text (without the Header's definition)
+STANDARD_TYPES = {"sensor_msgs/msg/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n"}
 
 #: Default topic -> type of the nmrm graph (same names as nmrm_ros.ros.topics, absolute).
 TOPIC_TYPES = {
@@ -24,6 +26,7 @@ TOPIC_TYPES = {
     "/nmrm/reward_step": "nmrm_msgs/msg/RewardStep",
     "/nmrm/trajectory_return": "nmrm_msgs/msg/TrajectoryReturn",
     "/nmrm/oracle_step": "nmrm_msgs/msg/OracleStep",
+    "/nmrm/frame": "sensor_msgs/msg/CompressedImage",  # env_sim render:=true (nmrm_ros.tasks.frames)
 }
 
 
@@ -57,17 +60,17 @@ def _nmrm_msg_dir() -> Path:
 
 
 def short_name(type_name: str) -> str:
-    """'nmrm_msgs/msg/EnvObservation' -> 'EnvObservation' (and check it is one of ours)."""
+    """'nmrm_msgs/msg/EnvObservation' -> 'EnvObservation' (and check it is one our bags carry)."""
     pkg, _, name = type_name.partition("/msg/")
-    if pkg != "nmrm_msgs" or name not in NMRM_TYPES:
-        raise ValueError(f"not an nmrm_msgs type: {type_name!r}")
+    if type_name not in STANDARD_TYPES and (pkg != "nmrm_msgs" or name not in NMRM_TYPES):
+        raise ValueError(f"not a type of our bags: {type_name!r}")
     return name
 
 
 @lru_cache(maxsize=None)
 def message_definition(type_name: str) -> str:
-    """The ros2msg schema text of an nmrm_msgs type, dependencies included."""
-    text = (_nmrm_msg_dir() / f"{short_name(type_name)}.msg").read_text()
+    """The ros2msg schema text of a type our bags carry, dependencies included."""
+    text = STANDARD_TYPES.get(type_name) or (_nmrm_msg_dir() / f"{short_name(type_name)}.msg").read_text()
     return (f"{text.rstrip()}\n{_SEPARATOR}\nMSG: std_msgs/Header\n{_HEADER}"
             f"{_SEPARATOR}\nMSG: builtin_interfaces/Time\n{_TIME}")
 
@@ -75,7 +78,7 @@ def message_definition(type_name: str) -> str:
 @lru_cache(maxsize=None)
 def type_hash(type_name: str) -> str:
     """The RIHS01 type hash from the installed type description, or '' without ROS."""
-    share = _share_dir("nmrm_msgs")
+    share = _share_dir(type_name.partition("/")[0])
     if share is None:
         return ""
     path = share / "msg" / f"{short_name(type_name)}.json"

@@ -3,10 +3,11 @@
 Plain Python (aiohttp for the page); the `labeller_web` node is the ROS adapter around them.
 """
 
+from .frames import FrameStore
 from .label_store import LabelStore, StoredLabel
 from .queue import Episode, LabelError, LabelQueue, return_range
 from .waiting_episodes import WaitingEpisode, WaitingEpisodes
 from .web_app import WebServer, make_app
 
-__all__ = ["Episode", "LabelError", "LabelQueue", "LabelStore", "StoredLabel", "WaitingEpisode",
+__all__ = ["Episode", "FrameStore", "LabelError", "LabelQueue", "LabelStore", "StoredLabel", "WaitingEpisode",
            "WaitingEpisodes", "WebServer", "make_app", "return_range"]

@@ -5,7 +5,9 @@ Routes (JSON unless said; every one behind the access token when there is one):
   GET  /api/info              task, labeller, return range ([null, null]: any number), the arena's
                               zones (null: a task of the user's), how the queue is ordered
   GET  /api/queue             finished unlabelled episodes, in the order they are asked
-  GET  /api/episode/{n}       one episode's states (L + 1, state size) and its label if any
+  GET  /api/episode/{n}       one episode's states (L + 1, state size), the steps that have a
+                              rendered frame, and its label if any
+  GET  /api/episode/{n}/frame/{t}  the frame of step t (image/jpeg or image/png)
   POST /api/label             {"episode": n, "return": x}: label (again: a correction)
   POST /api/skip              {"episode": n}
   GET  /api/labels            this session's labels, newest first
@@ -63,10 +65,10 @@ def _arena(task: str) -> dict | None:
 
 
 def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | None = None,
-             max_body: int = 4096) -> web.Application:
+             max_body: int = 4096, frames=None) -> web.Application:
     """The page's application. `on_label(label, episode)` is called (in the server's thread) for
     every accepted label, before the answer is sent: it publishes and stores it. `info`: extra
-    fields of /api/info (e.g. the labeller id)."""
+    fields of /api/info (e.g. the labeller id); `frames`: a FrameStore of rendered frames."""
 
     @web.middleware
     async def guard(request: web.Request, handler):
@@ -110,7 +112,15 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         label = queue.labels.get(ep.episode)
         return web.json_response({"episode": ep.episode, "length": ep.length,
                                   "states": ep.states.astype(float).round(5).tolist(),
+                                  "frames": frames.steps(ep.episode) if frames is not None else [],
                                   "label": None if label is None else label.value})
+
+    async def api_frame(request: web.Request) -> web.Response:
+        episode, step = int(request.match_info["episode"]), int(request.match_info["step"])
+        frame = frames.get(episode, step) if frames is not None else None
+        if frame is None:
+            return _error(404, f"no frame of episode {episode} step {step}")
+        return web.Response(body=frame[1], content_type=f"image/{frame[0]}")
 
     async def _body(request: web.Request) -> dict:
         if request.content_length is not None and request.content_length > max_body:
@@ -156,6 +166,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     app.add_routes([web.get("/", static), web.get("/static/{name}", static),
                     web.get("/api/info", api_info), web.get("/api/queue", api_queue),
                     web.get(r"/api/episode/{episode:\d+}", api_episode),
+                    web.get(r"/api/episode/{episode:\d+}/frame/{step:\d+}", api_frame),
                     web.post("/api/label", api_label), web.post("/api/skip", api_skip),
                     web.get("/api/labels", api_labels)])
     return app

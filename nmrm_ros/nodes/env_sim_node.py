@@ -20,6 +20,10 @@ for it to come back, up to `startup_timeout` s, before the next episode). With `
 `action_timeout` s, for this episode's TrajectoryReturn, so a killed labeller costs the episode in
 progress, not every episode run while it restarts. After `max_abandoned` abandoned episodes in a
 row the node gives up and exits with code 1. Abandoned episodes count towards `episodes`.
+With `render`, each `render_every`-th step's `env.render()` (and the final one) is published on
+`nmrm/frame` as a sensor_msgs/CompressedImage (JPEG or PNG, at most `render_width` pixels wide;
+header.frame_id names its episode and step: `nmrm_ros.tasks.frames`), so bags and the labelling
+page have what a person can watch.
 Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
 them those of every node named in `wait_for_nodes`, match its observation topic and an action
 publisher is matched (up to `startup_timeout` s), then `start_delay` s more (time for the other
@@ -34,13 +38,14 @@ import numpy as np
 from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, TrajectoryReturn
+from ..tasks import NAVIGATION_TASKS
 
 from ..ros.messages import as_vector, to_float_list
-from ..ros.node_main import Param, declare_parameters, require_task, run_node, subscribed_nodes
-from ..ros.topics import ACTION, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node, subscribed_nodes
+from ..ros.topics import ACTION, FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
-    "task": Param("key", "timer | moving | key | charger | lunar_lander"),
+    "task": Param("key", "timer | moving | key | charger | lunar_lander, or gym:<id> | <module>:<attribute>"),
     "seed": Param(0, "seed of episode 0; episode e resets with seed + e"),
     "episodes": Param(1, "number of episodes to run, 0 = for ever", 0),
     "first_episode": Param(0, "id of the first episode (ids key labels: give each session its own range)", 0),
@@ -54,6 +59,11 @@ PARAMETERS = {
     "wait_for_nodes": Param([""], "names of nodes whose observation subscriptions to wait for"),
     "startup_timeout": Param(60.0, "seconds to wait for subscribers and an action publisher", 0.001),
     "start_delay": Param(0.0, "seconds to wait once ready, so late endpoints of other nodes match", 0.0),
+    "render": Param(False, "publish env.render() frames on nmrm/frame (sensor_msgs/CompressedImage)"),
+    "render_every": Param(1, "render: a frame every this many steps (the final step always)", 1),
+    "render_width": Param(240, "render: frames scaled down to at most this many pixels wide", 16),
+    "render_format": Param("jpeg", "render: jpeg | png"),
+    "render_quality": Param(75, "render: JPEG quality, 1..95", 1),
 }
 
 
@@ -62,10 +72,23 @@ class EnvSimNode(Node):
         super().__init__("env_sim")
         p = declare_parameters(self, PARAMETERS)
         from ..tasks import make_env
+        from ..tasks.frames import FRAME_FORMATS
 
         self.info = require_task(p["task"])
         self.task = p["task"]
-        self.env = make_env(self.task, continuous=p["continuous"])
+        self.render = bool(p["render"])
+        if p["render_format"] not in FRAME_FORMATS:
+            raise NodeError(f"render_format must be one of {', '.join(FRAME_FORMATS)}, got {p['render_format']!r}")
+        if not 1 <= p["render_quality"] <= 95:
+            raise NodeError(f"render_quality must be in 1..95, got {p['render_quality']}")
+        self.frame_settings = (int(p["render_width"]), p["render_format"], int(p["render_quality"]))
+        self.render_every = int(p["render_every"])
+        try:
+            self.env = make_env(self.task, continuous=p["continuous"], render=self.render)
+        except ValueError as exc:
+            raise NodeError(str(exc)) from None
+        self.frames_sent = self.frame_bytes = 0
+        self.framed = None  # (episode, step) of the last frame published
         self.discrete = self.info.discrete and not p["continuous"]
         self.seed = int(p["seed"])
         self.episodes = int(p["episodes"])
@@ -85,6 +108,10 @@ class EnvSimNode(Node):
         self.ready_at = None
 
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
+        if self.render:
+            from sensor_msgs.msg import CompressedImage
+
+            self.frame_pub = self.create_publisher(CompressedImage, FRAME, STEP_QOS)
         self.sub = self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS)
         self.wait_for_labels = bool(p["wait_for_labels"])
         self.awaiting_label = None  # (episode, since) while waiting for an episode's label
@@ -190,7 +217,9 @@ class EnvSimNode(Node):
                                    f"{seconds:.2f} s ({self.steps_total / max(seconds, 1e-9):.0f} steps/s), "
                                    f"{self.dropped} action(s) dropped, {self.abandoned} episode(s) "
                                    f"abandoned (no valid action after {self.max_retries} re-publications)"
-                                   + (f", {self.unlabelled} without a label" if self.wait_for_labels else ""))
+                                   + (f", {self.unlabelled} without a label" if self.wait_for_labels else "")
+                                   + (f"; {self.frames_sent} frame(s), {self.frame_bytes / 1e6:.2f} MB"
+                                      if self.render else ""))
             self.state = None
             self.exit_code = 0
             return
@@ -217,6 +246,32 @@ class EnvSimNode(Node):
         msg.header.frame_id = self.task
         self.sent_at = time.monotonic()
         self.pub.publish(msg)
+        final = terminated or truncated
+        if self.render and (self.step_index % self.render_every == 0 or final) \
+                and self.framed != (self.episode, self.step_index):  # not again on a re-publication
+            self.publish_frame(msg.header.stamp)
+
+    def publish_frame(self, stamp) -> None:
+        """The frame of the current step on nmrm/frame (nmrm_ros.tasks.frames); a render that
+        fails is an error line, never a crash (the episode goes on without its frame)."""
+        from sensor_msgs.msg import CompressedImage
+
+        from ..tasks.frames import encode_frame, frame_id
+
+        self.framed = (self.episode, self.step_index)
+        width, fmt, quality = self.frame_settings
+        try:
+            data = encode_frame(self.env.render(), width, fmt, quality)
+        except Exception as exc:  # noqa: BLE001 - the user's env: one line, no frame
+            self.get_logger().error(f"episode {self.episode} step {self.step_index}: no frame: "
+                                    f"render() failed: {type(exc).__name__}: {exc}")
+            return
+        out = CompressedImage(format=fmt, data=data)
+        out.header.stamp = stamp
+        out.header.frame_id = frame_id(self.episode, self.step_index)
+        self.frame_pub.publish(out)
+        self.frames_sent += 1
+        self.frame_bytes += len(data)
 
     # -- actions -------------------------------------------------------------------------------
     def drop(self, why: str) -> None:
@@ -264,7 +319,8 @@ class EnvSimNode(Node):
             if a != int(a) or not 0 <= a < self.info.action_size:
                 raise ValueError(f"discrete action {a} is not an index in 0..{self.info.action_size - 1}")
             return int(a)
-        return as_vector(values, 2, "action").astype(np.float32)
+        size = 2 if self.task in NAVIGATION_TASKS else self.info.action_size
+        return as_vector(values, size, "action").astype(np.float32)
 
 
 def main(args=None) -> int:

@@ -17,6 +17,10 @@ training uses the latest label per labeller and episode. At start the node reads
 Finished, unlabelled episodes are kept in `labels_dir`/.waiting_episodes/ until labelled, so a
 restarted node offers them again (a crash costs at most the episode in progress).
 
+Rendered frames on `nmrm/frame` (env_sim `render:=true`) are kept (`frames_mb`) and the page
+plays an episode that has them as a video, with the same controls. They are not kept on disk:
+after a restart, the episodes offered again have their states only.
+
 Safety: binds 127.0.0.1 unless `host` says otherwise; on any other address every request needs
 the access token (`token`, or one generated and printed at start); bodies over 4 KiB are refused.
 """
@@ -31,11 +35,12 @@ import numpy as np
 from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
+from sensor_msgs.msg import CompressedImage
 
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, live_parameter,
                              require_task, run_node)
-from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+from ..ros.topics import FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -50,6 +55,7 @@ PARAMETERS = {
     "max_episodes": Param(1000, "finished episodes kept for labelling (oldest dropped)", 1),
     "checkpoint": Param("", "MIL ensemble checkpoint: ask first where its members disagree ('' = oldest first)"),
     "exit_with_upstream": Param(False, "exit when the observation topic's publishers are gone"),
+    "frames_mb": Param(200, "rendered frames (nmrm/frame) kept for the page, in MB (oldest episodes' dropped)", 1),
 }
 
 
@@ -59,7 +65,7 @@ class LabellerWebNode(Node):
         self.messages_received = 0
         super().__init__("labeller_web")
         p = declare_parameters(self, PARAMETERS)
-        from ..labelling import LabelQueue, LabelStore, WaitingEpisodes, WebServer, make_app
+        from ..labelling import FrameStore, LabelQueue, LabelStore, WaitingEpisodes, WebServer, make_app
         from ..labelling.label_store import WAITING_DIR
 
         self.info = require_task(p["task"])
@@ -88,7 +94,10 @@ class LabellerWebNode(Node):
         self.states: list = []
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
-        app = make_app(self.queue, self.on_label, {"labeller": self.labeller}, token=token or None)
+        self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
+        self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
+        app = make_app(self.queue, self.on_label, {"labeller": self.labeller}, token=token or None,
+                       frames=self.frames)
         self.server = WebServer(app, p["host"], int(p["port"]))
         try:
             self.server.start()
@@ -155,6 +164,14 @@ class LabellerWebNode(Node):
                                               f"not offer it again): {exc}")
                 self.get_logger().info(f"episode {msg.episode} ({msg.step} steps) waits for a label")
             self.states = []
+
+    def on_frame(self, msg: CompressedImage) -> None:
+        from ..tasks.frames import FRAME_FORMATS, parse_frame_id
+
+        where = parse_frame_id(msg.header.frame_id)
+        if where is None or msg.format not in FRAME_FORMATS:
+            return  # not a frame of ours (another publisher on the topic): ignored
+        self.frames.add(where[0], where[1], msg.format, bytes(msg.data))
 
     # -- labels (web server's thread) --------------------------------------------------------------
     def on_label(self, label, episode) -> None:

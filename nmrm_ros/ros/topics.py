@@ -13,8 +13,9 @@ ACTION = "nmrm/action"
 REWARD_STEP = "nmrm/reward_step"
 TRAJECTORY_RETURN = "nmrm/trajectory_return"
 ORACLE_STEP = "nmrm/oracle_step"
+FRAME = "nmrm/frame"  # sensor_msgs/CompressedImage: env_sim's rendered frames (render:=true)
 
-ALL_TOPICS = (OBSERVATION, ACTION, REWARD_STEP, TRAJECTORY_RETURN, ORACLE_STEP)
+ALL_TOPICS = (OBSERVATION, ACTION, REWARD_STEP, TRAJECTORY_RETURN, ORACLE_STEP, FRAME)
 
 STEP_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_ALL,

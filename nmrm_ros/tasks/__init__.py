@@ -68,15 +68,19 @@ def task_info(task: str) -> TaskInfo:
     return TaskInfo(task, 2, True, N_ACTIONS, EPISODE_LENGTH)
 
 
-def make_env(task: str, continuous: bool = False, **kwargs) -> gym.Env:
+def make_env(task: str, continuous: bool = False, render: bool = False, **kwargs) -> gym.Env:
     """A fresh rewardless env of `task`. `continuous` selects the continuous-action variant of the
     navigation tasks (Lunar Lander is always continuous; a task spec's env has its own actions)."""
     if is_task_spec(task):
         if continuous:
             raise TaskSpecError(f"task {task!r}: continuous applies to the navigation tasks only; "
                                 f"a Gymnasium env's action space is its own")
-        return make_gym_task_env(task)
+        return make_gym_task_env(task, render=render)
     check_task(task)
+    if render and task != "lunar_lander":
+        raise TaskSpecError(f"task {task!r} renders no frames (the labelling page draws its arena)")
+    if render:
+        kwargs["render_mode"] = "rgb_array"
     if task == "lunar_lander":
         from .lunar_lander import RewardlessLunarLander
 

@@ -83,11 +83,13 @@ def parse_task_spec(text: str) -> TaskSpec:
     return TaskSpec(text, "import", head, kwargs, max_steps)
 
 
-def _construct(spec: TaskSpec) -> gym.Env:
-    """The user's environment as they made it (not yet adapted)."""
+def _construct(spec: TaskSpec, render: bool = False) -> gym.Env:
+    """The user's environment as they made it (not yet adapted); `render`: with
+    render_mode="rgb_array", so that `render()` returns frames."""
+    kwargs = dict(spec.kwargs, render_mode="rgb_array") if render else spec.kwargs
     if spec.kind == "gym":
         try:
-            return gym.make(spec.target, **spec.kwargs)
+            return gym.make(spec.target, **kwargs)
         except Exception as exc:  # an unknown id, a missing dependency, the env's own error
             raise TaskSpecError(f"task {spec.text!r}: {' '.join(str(exc).split())}") from None
     module_name, _, attribute = spec.target.partition(":")
@@ -103,7 +105,13 @@ def _construct(spec: TaskSpec) -> gym.Env:
     if not callable(factory):
         raise TaskSpecError(f"task {spec.text!r}: {attribute!r} is not an env class or factory")
     try:
-        env = factory(**spec.kwargs)
+        env = factory(**kwargs)
+    except TypeError as exc:
+        if render and "render_mode" in str(exc):
+            raise TaskSpecError(f"task {spec.text!r}: {attribute}(...) takes no render_mode, so it "
+                                f"cannot render frames") from None
+        raise TaskSpecError(f"task {spec.text!r}: {attribute}(...) failed: "
+                            f"TypeError: {' '.join(str(exc).split())}") from None
     except Exception as exc:  # the user's code: say whose error it is, in one line
         raise TaskSpecError(f"task {spec.text!r}: {attribute}(...) failed: "
                             f"{type(exc).__name__}: {' '.join(str(exc).split())}") from None
@@ -176,7 +184,8 @@ class GymTaskEnv(gym.Wrapper):
         return self._flat(obs), 0.0, bool(terminated), bool(truncated), info
 
 
-def make_gym_task_env(task: str) -> GymTaskEnv:
-    """The env of task spec `task` (see the module docstring); TaskSpecError if it is unusable."""
+def make_gym_task_env(task: str, render: bool = False) -> GymTaskEnv:
+    """The env of task spec `task` (see the module docstring); TaskSpecError if it is unusable.
+    `render`: made with render_mode="rgb_array" (`env.render()` returns an RGB frame)."""
     spec = parse_task_spec(task)
-    return GymTaskEnv(_construct(spec), spec)
+    return GymTaskEnv(_construct(spec, render), spec)

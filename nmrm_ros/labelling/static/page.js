@@ -73,12 +73,26 @@ function drawStates() {
   svg.appendChild(cursor);
 }
 
+// An episode with rendered frames plays them as a video: the frame of the latest step <= the one shown.
+function drawFrame() {
+  const img = document.getElementById("frame");
+  const steps = current ? current.frames : [];
+  img.hidden = !steps.length;
+  if (!steps.length) return;
+  let shown = steps[0];
+  for (const s of steps) { if (s <= frame) shown = s; else break; }
+  const src = `/api/episode/${current.episode}/frame/${shown}` + (token ? `?token=${encodeURIComponent(token)}` : "");
+  if (img.getAttribute("src") !== src) img.setAttribute("src", src);
+  img.dataset.step = shown;
+}
+
 function drawEpisode() {
   if (!info.arena) {
     drawStates();
   } else {
     drawPath();
   }
+  drawFrame();
   if (!current) return;
   document.getElementById("scrub").value = frame;
   document.getElementById("step").textContent = `step ${frame} / ${current.length}`;
