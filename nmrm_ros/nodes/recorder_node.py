@@ -60,7 +60,10 @@ class RecorderNode(Node):
         except (FileExistsError, OSError) as exc:
             raise NodeError(str(exc)) from None
         self.subs = []
-        for topic, (name, type_name) in resolved.items():
+        # the observation topic last: env_sim starts when it sees that subscription (wait_for_nodes),
+        # and by then this node has announced its other subscriptions (labels, oracle steps) before it
+        order = sorted(resolved.items(), key=lambda item: item[1][0].endswith("/nmrm/observation"))
+        for topic, (name, type_name) in order:
             self.bag.add_topic(name, type_name)
             cb = (lambda data, n=name, t=type_name:
                   self.on_message(n, t, data))

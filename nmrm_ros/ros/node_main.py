@@ -34,6 +34,10 @@ class NodeError(RuntimeError):
 # this limit, which comes first, every thread's stack is written to stderr (so a hang says where)
 # and the process exits with code 1.
 SHUTDOWN_LIMIT_S = 12.0
+# An iteration of the spin loop (one callback) that takes longer than this writes every thread's
+# stack to stderr (and the node goes on): a node that stops answering, even Ctrl-C (Python runs
+# signal handlers only between callbacks), says where it is stuck.
+SPIN_STALL_S = 60.0
 
 _TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a double", str: "a string"}
 
@@ -164,7 +168,12 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         _warn_about_namesakes(node)
         executor = _executor()
         executor.add_node(node)
+        armed = 0.0
         while rclpy.ok() and stop["signal"] is None and getattr(node, "exit_code", None) is None:
+            now = time.monotonic()
+            if now - armed > 1.0:  # re-arm the stall watchdog about once a second
+                faulthandler.dump_traceback_later(SPIN_STALL_S, exit=False)
+                armed = now
             executor.spin_once(timeout_sec=0.1)
         code = getattr(node, "exit_code", None) or 0
     except NodeError as exc:
@@ -173,6 +182,7 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     finally:
+        faulthandler.cancel_dump_traceback_later()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         stopping = time.monotonic()
