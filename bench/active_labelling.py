@@ -66,9 +66,11 @@ class Proc:
 
 
 def api(base: str, path: str, body=None):
-    data = None if body is None else json.dumps(body).encode()
-    with urllib.request.urlopen(urllib.request.Request(base + path, data=data), timeout=30) as r:
-        return json.loads(r.read())
+    """The page's answer to GET `path` (or POST `body`); `base` is the page's URL, token included."""
+    from nmrm_ros.labelling.client import PageClient
+
+    client = PageClient(base, timeout=30)
+    return client.get(path) if body is None else client.post(path, body)
 
 
 def run_arm(arm: str, seed: int, pool_bag: Path, returns: dict, work: Path, args) -> list:
@@ -80,7 +82,7 @@ def run_arm(arm: str, seed: int, pool_bag: Path, returns: dict, work: Path, args
     trainer = Proc("trainer", task="key", retrain_every=args.batch, members=args.members,
                    max_epochs=args.max_epochs, seed=seed, out_dir=out / "checkpoints",
                    reward_model="''", labeller_web="labeller_web" if arm == "active" else "''")
-    base = web.wait_for("labelling page: ", timeout=60).split("labelling page: ")[1].split()[0].rstrip("/")
+    base = web.wait_for("labelling page: ", timeout=60).split("labelling page: ")[1].split()[0]
     replay = Proc("replay", bag=pool_bag, topics="[/nmrm/observation]", wait_for_subscribers=2,
                   wait_for_nodes="[labeller_web, trainer]", start_delay=1.0)
     versions = []

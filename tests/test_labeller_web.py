@@ -23,6 +23,7 @@ from graph_helpers import Capture, executable, finish, start
 from nmrm_ros.bags import iter_decoded
 from nmrm_ros.labelling import LabelError, LabelQueue, LabelStore
 
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 ARTEFACTS = Path(os.environ.get("NMRM_TEST_ARTEFACTS", Path(__file__).resolve().parents[1] / "build" / "test_artefacts"))
 
 
@@ -98,13 +99,18 @@ class WebNode:
         self.reader = threading.Thread(target=lambda: self.lines.extend(self.proc.stdout), daemon=True)
         self.reader.start()
 
-    def request(self, path: str, body=None, token: str | None = None, raw: bytes | None = None) -> tuple:
-        """(status, decoded JSON or text, headers)."""
+    def request(self, path: str, body=None, token: str | None = None, raw: bytes | None = None,
+                content_type: str = "application/json", headers: dict | None = None) -> tuple:
+        """(status, decoded JSON or text, headers) of GET `path` (POST with `body` or `raw`)."""
         data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
         req = urllib.request.Request(self.base + path, data=data, method="POST" if data is not None else "GET")
         tok = self.token if token is None else token
         if tok:
             req.add_header("X-Token", tok)
+        if data is not None:
+            req.add_header("Content-Type", content_type)
+        for name, value in (headers or {}).items():
+            req.add_header(name, value)
         try:
             with urllib.request.urlopen(req, timeout=10) as r:
                 status, text, headers = r.status, r.read().decode(), r.headers
@@ -170,6 +176,85 @@ def test_page_refuses_bad_requests(ros_domain, tmp_path):
     assert "0 label(s) this session" in out, out
 
 
+def test_the_page_is_safe_by_default(ros_domain, tmp_path):
+    """With the defaults (127.0.0.1): the token is on and printed in the URL; a request without it
+    is refused; a Host that is not this server's (DNS rebinding) is refused even with the token; a
+    POST that is not JSON (what a cross-site form or no-cors fetch can send), or that comes from
+    another origin, is refused; nothing of it is labelled. GET / with the token sets an HttpOnly,
+    SameSite=Strict cookie that the page's reads use."""
+    node = WebNode(tmp_path / "labels")
+    try:
+        assert len(node.token) >= 20
+        play_episodes(1)
+        node.wait_for_queue(1)
+        port = node.base.rsplit(":", 1)[1]
+        for path in ("/", "/api/queue", "/static/page.js"):
+            assert node.request(path, token="")[0] == 401
+        assert node.request("/api/queue", headers={"Host": f"attacker.example:{port}"})[0] == 403
+        assert node.request("/api/queue", headers={"Host": f"localhost:{port}"})[0] == 200
+        label = {"episode": 0, "return": 42.5}
+        status, answer, _ = node.request("/api/label", label, content_type="text/plain")
+        assert status == 415 and "application/json" in answer["error"], answer
+        status, answer, _ = node.request("/api/label", label, headers={"Origin": "http://127.0.0.2:9099"})
+        assert status == 403 and "cross-origin" in answer["error"], answer
+        status, _, headers = node.request(f"/?token={node.token}", token="")
+        cookie = headers["Set-Cookie"]
+        assert status == 200 and "HttpOnly" in cookie and "SameSite=Strict" in cookie, cookie
+        assert node.request("/api/labels")[1]["labels"] == []
+    finally:
+        out = node.stop()
+    assert "0 label(s) this session" in out, out
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium")
+@pytest.mark.parametrize("require_token", [True, False])
+def test_another_web_page_can_neither_label_nor_read(ros_domain, tmp_path, require_token):
+    """In the real browser, the labeller has the page open (its token cookie set); a page of another
+    origin (http://127.0.0.2:...) posts a label with fetch(no-cors, text/plain) and a form, and tries
+    to read the queue: nothing is labelled, nothing is read. Also with require_token:=false, where
+    only the Host, content-type and origin checks stand."""
+    import http.server
+
+    from playwright.sync_api import sync_playwright
+
+    node = WebNode(tmp_path / "labels", require_token=require_token)
+    attacker = http.server.ThreadingHTTPServer(("127.0.0.2", 0), http.server.SimpleHTTPRequestHandler)
+    threading.Thread(target=attacker.serve_forever, daemon=True).start()
+    try:
+        play_episodes(1)
+        node.wait_for_queue(1)
+        target = node.base
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            context = browser.new_context()
+            page = context.new_page()
+            page.goto(node.url)
+            page.wait_for_selector("#queue li")
+            evil = context.new_page()
+            evil.goto(f"http://127.0.0.2:{attacker.server_address[1]}/")
+            read = evil.evaluate("""async (target) => {
+                await fetch(target + '/api/label', {method: 'POST', mode: 'no-cors', credentials: 'include',
+                    headers: {'Content-Type': 'text/plain'}, body: '{"episode": 0, "return": 42.5}'});
+                try {
+                    await fetch(target + '/api/label', {method: 'POST', credentials: 'include',
+                        headers: {'Content-Type': 'application/json'}, body: '{"episode": 0, "return": 43.5}'});
+                } catch (e) {}
+                try { const r = await fetch(target + '/api/queue', {credentials: 'include'}); return await r.text(); }
+                catch (e) { return 'refused: ' + e; }
+            }""", target)
+            assert read.startswith("refused"), read
+            evil.set_content(f'<form method="post" action="{target}/api/label" enctype="text/plain">'
+                             '<input name=\'{"episode": 0, "return": 44.5, "x": "\' value=\'"}\'></form>')
+            evil.evaluate("document.forms[0].submit()")
+            evil.wait_for_load_state()
+            browser.close()
+        assert node.request("/api/labels")[1]["labels"] == []
+    finally:
+        attacker.shutdown()
+        out = node.stop()
+    assert "0 label(s) this session" in out, out
+
+
 def test_labels_reach_the_topic_and_the_bag_and_a_restart_asks_nothing_twice(ros_domain, tmp_path):
     """Label episodes 0 and 1 of three (and correct 1): the labels are on the topic and in the
     labels bag at once; kill -9; a restarted node offers the unlabelled episode 2 at once and,
@@ -212,7 +297,6 @@ def test_labels_reach_the_topic_and_the_bag_and_a_restart_asks_nothing_twice(ros
 
 
 # -- a real browser -------------------------------------------------------------------------------
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "

@@ -114,11 +114,10 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
     """label.launch.yaml under `ros2 launch`: four episodes wait on the page; two labels posted to
     its API make the trainer write key_v001, which the reward model and the page's queue load;
     the labels are in the labels bag; Ctrl-C ends all six nodes cleanly."""
-    import json
     import threading
     import time
-    import urllib.request
 
+    from nmrm_ros.labelling.client import PageClient
     from nmrm_ros.mil import save_checkpoint
     from nmrm_ros.mil.ensemble import init_ensemble
     from nmrm_ros.mil.models import model_config
@@ -144,12 +143,11 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
         raise AssertionError(f"no {count} x {text!r} in\n{''.join(lines)}")
 
     def api(path: str, body=None):
-        data = None if body is None else json.dumps(body).encode()
-        with urllib.request.urlopen(urllib.request.Request(base + path, data=data), timeout=10) as r:
-            return json.loads(r.read())
+        client = PageClient(url)
+        return client.get(path) if body is None else client.post(path, body)
 
     try:
-        base = wait_for("labelling page: ").split("labelling page: ")[1].split()[0].rstrip("/")
+        url = wait_for("labelling page: ").split("labelling page: ")[1].split()[0]
         # env_sim's "done" says all was published, not that the page has followed it all yet
         wait_for("waits for a label", count=4)
         queue = api("/api/queue")["episodes"]

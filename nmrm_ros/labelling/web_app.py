@@ -12,8 +12,13 @@ Routes (JSON unless said; every one behind the access token when there is one):
   POST /api/skip              {"episode": n}
   GET  /api/labels            this session's labels, newest first
 
-Safety: the token (if any) must come with every request, as the `X-Token` header or a `token`
-query parameter (compared in constant time); bodies over `max_body` bytes are refused (413);
+Safety (Jupyter's defaults are the bar): the `Host` header must name this server (`allowed_hosts`;
+a DNS-rebinding page's host is refused, 403); the token (if any) must come with every request, as
+the `X-Token` header, or for a GET as a `token` query parameter or the cookie a GET / with the
+right token sets (HttpOnly, SameSite=Strict: never sent by another site's page), compared in
+constant time (401); a POST must be `application/json` (415: a cross-site form or no-cors fetch
+cannot send that without a CORS preflight, which is never granted) and, if it says where it
+comes from, from this server's own origin (403); bodies over `max_body` bytes are refused (413);
 labels are validated (a finite number within the task's range, an episode that is here); every
 answer is JSON or a static file with a Content-Security-Policy that allows our own scripts only,
 and the page writes every value with textContent, never as HTML.
@@ -64,18 +69,47 @@ def _arena(task: str) -> dict | None:
     return {"bounds": [0.0, 1.0, 0.0, 1.0], "zones": zones, "xy": [0, 1]}
 
 
+TOKEN_COOKIE = "nmrm_token"
+
+
 def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | None = None,
-             max_body: int = 4096, frames=None) -> web.Application:
+             max_body: int = 4096, frames=None, allowed_hosts: set | None = None) -> web.Application:
     """The page's application. `on_label(label, episode)` is called (in the server's thread) for
     every accepted label, before the answer is sent: it publishes and stores it. `info`: extra
-    fields of /api/info (e.g. the labeller id); `frames`: a FrameStore of rendered frames."""
+    fields of /api/info (e.g. the labeller id); `frames`: a FrameStore of rendered frames;
+    `allowed_hosts`: the `Host` values ("name:port", lower case) this server answers to (None:
+    any; the set may be filled once the port is known)."""
+
+    def _valid(given: str) -> bool:
+        return bool(given) and hmac.compare_digest(given.encode(), token.encode())
+
+    async def _refused(request: web.Request) -> web.Response | None:
+        host = request.headers.get("Host", "").lower()
+        if allowed_hosts is not None and host not in allowed_hosts:
+            return _error(403, f"Host {host!r} is not this server's")
+        if token:
+            given = request.headers.get("X-Token", "")
+            if not given:
+                given = request.cookies.get(TOKEN_COOKIE, "")
+                if request.method == "GET" and not _valid(given):
+                    given = request.query.get("token", "")
+            if not _valid(given):
+                return _error(401, "missing or wrong access token")
+        if request.method not in ("GET", "HEAD"):
+            if request.content_type != "application/json":
+                return _error(415, "a request that changes anything must be application/json")
+            origin = request.headers.get("Origin")
+            if origin is not None and origin.lower() != f"http://{host}":
+                return _error(403, f"cross-origin request from {origin!r} refused")
+        return None
 
     @web.middleware
     async def guard(request: web.Request, handler):
-        if token:
-            given = request.headers.get("X-Token") or request.query.get("token") or ""
-            if not hmac.compare_digest(given.encode(), token.encode()):
-                return _error(401, "missing or wrong access token")
+        refused = await _refused(request)
+        if refused is not None:
+            refused.headers["Content-Security-Policy"] = CSP
+            refused.headers["Cache-Control"] = "no-store"
+            return refused
         try:
             response = await handler(request)
         except web.HTTPRequestEntityTooLarge:
@@ -86,6 +120,8 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         response.headers["X-Content-Type-Options"] = "nosniff"
         response.headers["Referrer-Policy"] = "no-referrer"
         response.headers["Cache-Control"] = "no-store"
+        if token and request.path == "/" and _valid(request.query.get("token", "")):
+            response.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="Strict", path="/")
         return response
 
     async def static(request: web.Request) -> web.Response:

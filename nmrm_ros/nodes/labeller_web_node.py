@@ -21,8 +21,11 @@ Rendered frames on `nmrm/frame` (env_sim `render:=true`) are kept (`frames_mb`) 
 plays an episode that has them as a video, with the same controls. They are not kept on disk:
 after a restart, the episodes offered again have their states only.
 
-Safety: binds 127.0.0.1 unless `host` says otherwise; on any other address every request needs
-the access token (`token`, or one generated and printed at start); bodies over 4 KiB are refused.
+Safety (as Jupyter's): binds 127.0.0.1 unless `host` says otherwise; every request needs the
+access token (`token`, or one generated and printed in the URL at start; `require_token:=false`
+drops it on 127.0.0.1 only), the Host header must name this server, and a request that changes
+anything must be JSON from the page's own origin (nmrm_ros.labelling.web_app); bodies over 4 KiB
+are refused.
 """
 
 from __future__ import annotations
@@ -49,8 +52,9 @@ PARAMETERS = {
     "person": Param("anonymous", "who labels: the labels' labeller id is person/<person>"),
     "host": Param("127.0.0.1", "address the page is served on (not loopback: a token is required)"),
     "port": Param(8080, "TCP port of the page (0: any free port, printed at start)", 0),
-    "token": Param("", "access token; '' = none on 127.0.0.1, generated and printed on other addresses"),
-    "require_token": Param(False, "require a token even on 127.0.0.1"),
+    "token": Param("", "access token; '' = one generated and printed in the page's URL at start"),
+    "require_token": Param(True, "require the token on 127.0.0.1 too (false: none there; other "
+                                 "addresses always require it)"),
     "labels_dir": Param("labels", "directory of this labeller's labels bags (one per session)"),
     "max_episodes": Param(1000, "finished episodes kept for labelling (oldest dropped)", 1),
     "checkpoint": Param("", "MIL ensemble checkpoint: ask first where its members disagree ('' = oldest first)"),
@@ -96,14 +100,20 @@ class LabellerWebNode(Node):
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
         self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
+        allowed_hosts: set | None = None if p["host"] in ("0.0.0.0", "::") else set()
         app = make_app(self.queue, self.on_label, {"labeller": self.labeller}, token=token or None,
-                       frames=self.frames)
+                       frames=self.frames, allowed_hosts=allowed_hosts)
         self.server = WebServer(app, p["host"], int(p["port"]))
         try:
             self.server.start()
         except OSError as exc:
             self.store.close()
             raise NodeError(f"cannot serve on {p['host']}:{p['port']}: {exc.strerror or exc}") from None
+        if allowed_hosts is not None:  # the Host a browser sends for this address and port
+            names = LOOPBACK if p["host"] in LOOPBACK else (p["host"],)
+            allowed_hosts.update(f"[{n}]:{self.server.port}" if ":" in n else f"{n}:{self.server.port}"
+                                 for n in names)
+            allowed_hosts.update(n.lower() for n in list(allowed_hosts))
         url = f"http://{p['host']}:{self.server.port}/" + (f"?token={token}" if token else "")
         self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller {self.labeller}, "
                                f"{len(self.queue.done_before)} episode(s) labelled before, labels to "
