@@ -64,7 +64,7 @@ ORACLE_HELP = ("your own oracle, <module>:<function> or <file.py>:<function> (ne
 
 
 def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool, pool_size: int | None,
-              bins: int):
+              bins: int, policy: Path | None = None):
     """The screened dataset the dataset commands write (see datasets.generate_screened)."""
     from tqdm import tqdm
 
@@ -72,7 +72,7 @@ def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool,
     from .tasks import check_task, is_task_spec
 
     _bad_input(check_task, task)
-    kwargs: dict = {"pool_size": pool_size, "bins": bins}
+    kwargs: dict = {"pool_size": pool_size, "bins": bins, "policy": str(policy) if policy else None}
     if oracle or is_task_spec(task):
         bar = tqdm(total=pool_size or 4 * n, desc=f"rolling out {task}", unit="ep", leave=False, disable=None)
         kwargs["progress"] = lambda done: bar.update(done - bar.n)
@@ -95,10 +95,12 @@ def dataset_screen(
     pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
                                                     "default 2n; your own task or oracle: 4n)"),
     bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
+    policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
+                                           "episodes are screened (default: uniform random)"),
 ) -> None:
     """Generate a screened dataset (paper App. D.2; your own task: balanced return bins) and
     print draws and time."""
-    ds = _screened(task, n, seed, oracle, key_fourth_class, pool_size, bins)
+    ds = _screened(task, n, seed, oracle, key_fourth_class, pool_size, bins, policy)
     typer.echo(_dataset_summary(ds))
     if out is not None:
         typer.echo(f"wrote {ds.save(out)}")
@@ -115,6 +117,8 @@ def dataset_generate(
     pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
                                                     "default 2n; your own task or oracle: 4n)"),
     bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
+    policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
+                                           "episodes are screened (default: uniform random)"),
 ) -> None:
     """Screened episodes written as a bag with the live graph's topics (observations, actions,
     oracle ground truth, oracle labels)."""
@@ -122,7 +126,7 @@ def dataset_generate(
 
     from .bags import write_dataset_bag
 
-    ds = _screened(task, episodes, seed, oracle, key_fourth_class, pool_size, bins)
+    ds = _screened(task, episodes, seed, oracle, key_fourth_class, pool_size, bins, policy)
     typer.echo(_dataset_summary(ds))
     t0 = time.perf_counter()
     try:

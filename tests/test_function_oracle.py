@@ -170,6 +170,24 @@ def test_your_own_task_from_dataset_to_an_agent_learning_through_the_graph(ros_d
     assert res.returncode == 0, res.stdout + res.stderr
 
 
+def test_a_policy_of_plain_states_can_be_screened(tmp_path):
+    """--policy: episodes of a saved policy (here a short oracle-no-hidden agent) instead of random
+    ones; a policy of another observation (a reward model's augmented state) is a one-line error."""
+    plain, augmented = tmp_path / "plain", tmp_path / "augmented"
+    for reward, out in (("oracle-no-hidden", plain), ("oracle", augmented)):
+        res = _nmrm("rl", "train", "--task", CARTPOLE, "--reward", reward, "--oracle", EXAMPLE,
+                    "--episodes", 3, "--out", out)
+        assert res.returncode == 0, res.stdout + res.stderr
+    res = _nmrm("dataset", "screen", "--task", CARTPOLE, "--oracle", EXAMPLE, "--n", 20,
+                "--policy", plain / "policy.zip")
+    assert res.returncode == 0 and "policy.zip policy" in res.stdout, res.stdout + res.stderr
+    res = _nmrm("dataset", "screen", "--task", CARTPOLE, "--oracle", EXAMPLE, "--n", 20,
+                "--policy", augmented / "policy.zip")
+    assert res.returncode == 2 and "observes 6 values and gym:CartPole-v1 states have 4" in res.stderr, res.stderr
+    res = _nmrm("dataset", "screen", "--task", "key", "--n", 20, "--policy", plain / "policy.zip")
+    assert res.returncode == 2 and "needs your own task or --oracle" in res.stderr, res.stderr
+
+
 @pytest.mark.parametrize("args,message", [
     (("--task", CARTPOLE), "has no oracle of ours: give your own as --oracle"),
     (("--task", CARTPOLE, "--oracle", "/nope.py:f"), "no file /nope.py"),

@@ -120,3 +120,16 @@ def test_the_cli_takes_a_task_spec_and_says_what_is_wrong_in_one_line():
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and "gym:NoSuchEnv-v0" in res.stderr and "Traceback" not in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_xy_names_the_dimensions_the_page_draws_as_a_path():
+    from nmrm_ros.labelling.web_app import _arena
+
+    assert parse_task_spec("gym:MountainCar-v0,xy=0/1").xy == (0, 1)
+    assert _arena("gym:MountainCar-v0,xy=0/1") == {"bounds": None, "zones": [], "xy": [0, 1]}
+    assert _arena("gym:MountainCar-v0") is None
+    for bad in ("xy=0", "xy=a/b", "xy=1/1", "xy=-1/0"):
+        with pytest.raises(TaskSpecError, match="xy must name two state dimensions"):
+            parse_task_spec(f"gym:MountainCar-v0,{bad}")
+    with pytest.raises(TaskSpecError, match="the state has 2 dimensions"):
+        task_info("gym:MountainCar-v0,xy=0/5")

@@ -364,7 +364,7 @@ def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, 
     and takes any number as its return. A screenshot goes to build/test_artefacts/."""
     from playwright.sync_api import sync_playwright
 
-    task = "gym:CartPole-v1"
+    task = "gym:CartPole-v1,xy=0/2"  # the page also draws the cart's x against the pole's angle
     node = WebNode(tmp_path / "labels", task=task)
     try:
         play_episodes(3, task=task, render=True, render_every=2)
@@ -376,15 +376,16 @@ def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, 
             errors: list = []
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(node.url)
-            page.wait_for_selector("#arena polyline.dim")
-            assert page.locator("#arena polyline.dim").count() == 4
+            page.wait_for_selector("#dims polyline.dim")
+            assert page.locator("#dims polyline.dim").count() == 4
             first = queue[0]["length"]
-            assert len(page.get_attribute("#arena polyline.dim", "points").split()) == first + 1
+            assert len(page.get_attribute("#dims polyline.dim", "points").split()) == first + 1
             assert page.text_content("#range") == "any number"
             page.fill("#scrub", "3")
             page.dispatch_event("#scrub", "input")
             assert page.text_content("#step") == f"step 3 / {first}"
-            assert float(page.get_attribute("#arena line.cursor", "x1")) == pytest.approx(100 * 3 / first)
+            assert float(page.get_attribute("#dims line.cursor", "x1")) == pytest.approx(100 * 3 / first)
+            assert len(page.get_attribute("#arena polyline.path", "points").split()) == 4  # xy: steps 0..3
             frame = page.locator("#frame")
             assert frame.is_visible() and frame.get_attribute("data-step") == "2"  # frames at 0, 2, 4, ...
             page.wait_for_function("document.getElementById('frame').complete")

@@ -247,18 +247,25 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
     """The screened dataset of any task: navigation, the paper's classes over random-policy
     trajectories; lunar_lander, its classes over a scripted pool of `pool_size` episodes (default
     2 * n_target); a task of the user's (a task spec) or any task with a user's `oracle`
-    ("<module>:<function>"), return bins over a random-policy pool (`return_screening`;
-    kwargs pool_size, bins)."""
+    ("<module>:<function>"), return bins over a pool of a random policy or of kwargs policy (a
+    policy.zip; `return_screening`; kwargs pool_size, bins, policy)."""
     from ..tasks import is_task_spec
 
     check_task(task)
     if oracle or is_task_spec(task):
         from .return_screening import screen_by_return
 
+        from .return_screening import load_screening_policy
+
+        policy = kwargs.get("policy") or None
         return screen_by_return(task, make_oracle(task, oracle), n_target, seed=seed,
                                 pool_size=kwargs.get("pool_size"), bins=kwargs.get("bins", 10),
-                                progress=kwargs.get("progress"))
+                                progress=kwargs.get("progress"),
+                                policy=load_screening_policy(policy, task, seed) if policy else None,
+                                policy_name=str(policy or "random"))
     kwargs.pop("bins", None)
+    if kwargs.pop("policy", None):
+        raise ValueError("--policy screens by return bins: it needs your own task or --oracle")
     if task == "lunar_lander":
         pool_size = kwargs.pop("pool_size", None) or 2 * n_target
         kwargs.pop("progress", None)

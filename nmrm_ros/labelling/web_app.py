@@ -50,7 +50,10 @@ def _arena(task: str) -> dict | None:
     """What the page draws under a path: the arena's bounds and zones (x0, x1, y0, y1, kind);
     None for a task of the user's (the page then plots each state dimension over time)."""
     if ":" in task:
-        return None
+        from ..tasks.gym_task import parse_task_spec
+
+        xy = parse_task_spec(task).xy
+        return None if xy is None else {"bounds": None, "zones": [], "xy": list(xy)}
     if task == "lunar_lander":
         return {"bounds": [-1.5, 1.5, -0.2, 1.6], "zones": [[-0.2, 0.2, -0.05, 0.0, "pad"]],
                 "xy": [0, 1]}

@@ -9,9 +9,10 @@ for a new task:
                                          package, e.g. my_robot.sim:make_env,speed=0.5
 
 `key=value` pairs are keyword arguments of `gym.make` or of the class / factory; values are read
-as YAML scalars (`3` int, `0.5` float, `true` bool, else a string). One key is ours:
+as YAML scalars (`3` int, `0.5` float, `true` bool, else a string). Two keys are ours:
 `max_steps=N` ends episodes after N steps (a TimeLimit) where the environment has no limit of
-its own; without either, the task is refused, since MIL needs whole trajectories.
+its own; without either, the task is refused, since MIL needs whole trajectories. `xy=i/j` names
+the state dimensions the labelling page draws as a 2D path (e.g. a robot's position).
 
 What the package sees of the environment (`GymTaskEnv`):
 - the state: the observation flattened to a float32 vector (`gymnasium.spaces.flatten`: a Box
@@ -54,6 +55,7 @@ class TaskSpec:
     target: str  # the Gymnasium id, or "module:attribute"
     kwargs: dict = field(default_factory=dict)
     max_steps: int | None = None
+    xy: tuple | None = None  # state dimensions the labelling page draws as a 2D path
 
 
 def parse_task_spec(text: str) -> TaskSpec:
@@ -72,15 +74,25 @@ def parse_task_spec(text: str) -> TaskSpec:
     if max_steps is not None and (not isinstance(max_steps, int) or isinstance(max_steps, bool)
                                   or max_steps < 1):
         raise TaskSpecError(f"task {text!r}: max_steps must be a positive integer, got {max_steps!r}")
+    xy = kwargs.pop("xy", None)
+    if xy is not None:
+        try:
+            i, j = (int(v) for v in str(xy).split("/"))
+            if i < 0 or j < 0 or i == j:
+                raise ValueError
+        except ValueError:
+            raise TaskSpecError(f"task {text!r}: xy must name two state dimensions as i/j, e.g. xy=0/1, "
+                                f"got {xy!r}") from None
+        xy = (i, j)
     if head.startswith(GYM_PREFIX):
         target = head[len(GYM_PREFIX):]
         if not target:
             raise TaskSpecError(f"task {text!r}: give a Gymnasium id after gym:, e.g. gym:MountainCar-v0")
-        return TaskSpec(text, "gym", target, kwargs, max_steps)
+        return TaskSpec(text, "gym", target, kwargs, max_steps, xy)
     module, _, attribute = head.partition(":")
     if not module or not attribute:
         raise TaskSpecError(f"task {text!r}: use gym:<id> or <module>:<attribute>")
-    return TaskSpec(text, "import", head, kwargs, max_steps)
+    return TaskSpec(text, "import", head, kwargs, max_steps, xy)
 
 
 def _construct(spec: TaskSpec, render: bool = False) -> gym.Env:
@@ -166,6 +178,9 @@ class GymTaskEnv(gym.Wrapper):
         self.episode_length = int(limit)
         self._source_space = env.observation_space
         size = gym.spaces.flatdim(self._source_space)
+        if spec.xy is not None and max(spec.xy) >= size:
+            raise TaskSpecError(f"task {spec.text!r}: xy={spec.xy[0]}/{spec.xy[1]} but the state has "
+                                f"{size} dimensions (0..{size - 1})")
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
         self._t = 0
 

@@ -23,8 +23,17 @@ function api(path, body) {
 function el(tag, text) { const e = document.createElement(tag); if (text !== undefined) e.textContent = text; return e; }
 function showError(e) { document.getElementById("error").textContent = e ? String(e.message || e) : ""; }
 
+function bounds() {  // the arena's, or (your own task's x/y) the episode's own, with a margin
+  if (info.arena.bounds) return info.arena.bounds;
+  if (!current) return [0, 1, 0, 1];
+  const [ix, iy] = info.arena.xy;
+  const xs = current.states.map((s) => s[ix]), ys = current.states.map((s) => s[iy]);
+  const pad = (lo, hi) => { const m = (hi - lo) * 0.05 || 0.5; return [lo - m, hi + m]; };
+  return [...pad(Math.min(...xs), Math.max(...xs)), ...pad(Math.min(...ys), Math.max(...ys))];
+}
+
 function toView(x, y) {  // arena coordinates -> SVG (y up)
-  const [x0, x1, y0, y1] = info.arena.bounds;
+  const [x0, x1, y0, y1] = bounds();
   return [100 * (x - x0) / (x1 - x0), 100 - 100 * (y - y0) / (y1 - y0)];
 }
 
@@ -47,7 +56,7 @@ function drawArena() {
 // dimension (scaled to its range in this episode), with a cursor at the step shown.
 const MAX_DIMS = 12;
 function drawStates() {
-  const svg = document.getElementById("arena");
+  const svg = document.getElementById("dims");
   svg.replaceChildren();
   if (!current) return;
   const dims = Math.min(current.states[0].length, MAX_DIMS), band = 100 / dims, steps = current.length;
@@ -87,11 +96,8 @@ function drawFrame() {
 }
 
 function drawEpisode() {
-  if (!info.arena) {
-    drawStates();
-  } else {
-    drawPath();
-  }
+  if (info.arena) drawPath();
+  if (info.task.includes(":")) drawStates();  // your own task: its state dimensions over time
   drawFrame();
   if (!current) return;
   document.getElementById("scrub").value = frame;
@@ -195,6 +201,9 @@ async function main() {
   document.getElementById("play").addEventListener("click", play);
   document.getElementById("pause").addEventListener("click", stop);
   document.getElementById("scrub").addEventListener("input", (e) => { stop(); frame = Number(e.target.value); drawEpisode(); });
+  // SVG elements have no .hidden property: toggle the attribute
+  document.getElementById("arena").toggleAttribute("hidden", !info.arena);
+  document.getElementById("dims").toggleAttribute("hidden", !info.task.includes(":"));
   if (info.arena) drawArena();
   await refresh(true);
   setInterval(() => refresh(!current).catch(showError), 2000);
