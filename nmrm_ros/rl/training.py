@@ -145,7 +145,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     from stable_baselines3.common.vec_env import DummyVecEnv
     from stable_baselines3.common.monitor import Monitor
 
-    from ..tasks import is_task_spec, task_info
+    from ..tasks import task_info
     from .config import algorithm_name, load_rl_config, make_algorithm
     from .wrappers import make_reward_env
 
@@ -164,16 +164,6 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
     # as its base, so give each env its own base (VecEnv.seed can only add the env index).
     vec._seeds = seeds  # noqa: SLF001 - no public setter
-    if algo == "dqn" and is_task_spec(task):  # episodes may be shorter than the longest
-        schedule = EpisodeEpsilon(float(cfg["exploration_initial_eps"]), float(cfg["exploration_final_eps"]),
-                                  float(cfg["exploration_fraction"]) * episodes)
-        model.exploration_schedule = schedule
-        user_on_episode = on_episode
-
-        def on_episode(rec, info, _user=user_on_episode):
-            schedule.done = rec.episode + 1
-            if _user is not None:
-                _user(rec, info)
     callback = EpisodeCurveCallback(max_episodes=episodes, on_episode=on_episode)
     t0 = time.perf_counter()
     model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
@@ -188,21 +178,6 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
             "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
             "config": cfg})
     return AgentRun(model, callback.curve, seconds, out_dir)
-
-
-class EpisodeEpsilon:
-    """DQN's epsilon from episodes rather than steps: linear from `start` to `end` over the first
-    `span` episodes (config/rl.yaml's exploration_fraction of the episodes), `done` episodes so far.
-    SB3 counts steps of total_timesteps = episodes x the longest episode, which is the same for our
-    fixed-length tasks; for a task whose episodes are shorter (a CartPole agent's first ones last
-    ~20 of 200 steps) its epsilon would still be ~0.7 after all the episodes. Picklable (saved with
-    the policy)."""
-
-    def __init__(self, start: float, end: float, span: float) -> None:
-        self.start, self.end, self.span, self.done = start, end, max(1.0, span), 0
-
-    def __call__(self, _progress_remaining: float) -> float:
-        return self.start + (self.end - self.start) * min(1.0, self.done / self.span)
 
 
 def save_agent(model, curve: LearningCurve, out: Path, meta: dict) -> None:
