@@ -35,29 +35,44 @@ NAV = ("timer", "moving", "key", "charger")
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 
 
+def ens_seeds(r: int, cfg) -> list:
+    """Weight seeds of repeat r's members: r + 1000 j."""
+    return [r + 1000 * j for j in range(cfg.members)]
+
+
+def train_repeat(arch: str, ds, held, r: int, cfg) -> tuple:
+    """Repeat r: `cfg.members` models of `arch` (weight seeds r + 1000 j) trained in one pass on
+    split r of `ds`; (ensemble, train result, seconds, test metrics, held-out metrics), both of the
+    members' mean."""
+    from nmrm_ros.mil import evaluate, model_config
+    from nmrm_ros.mil.data import split_indices
+    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
+    from nmrm_ros.mil.training import train_ensemble
+
+    seeds = ens_seeds(r, cfg)
+    train, val, test = split_indices(len(ds), r)
+    ens = init_ensemble(model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout,
+                                     hidden_size=cfg.hidden_size), seeds)
+    t0 = time.perf_counter()
+    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
+    seconds = time.perf_counter() - t0
+    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
+    return ens, result, seconds, evaluate(mean, ds.subset(test)), evaluate(mean, held)
+
+
 def run_repeat(job: tuple) -> dict:
     """Train and score repeat r of `task`; writes and returns its result."""
     task, r, overrides, out = job
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import evaluate, load_train_config, model_config
-    from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
-    from nmrm_ros.mil.training import train_ensemble
+    from nmrm_ros.mil import load_train_config
 
     ds = load_dataset(task, 5000, r)
     held = load_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, **overrides)
-    seeds = [r + 1000 * j for j in range(cfg.members)]
-    train, val, test = split_indices(len(ds), r)
-    ens = init_ensemble(model_config("csc_lstm", task, ds.state_size, dropout=cfg.dropout,
-                                     hidden_size=cfg.hidden_size), seeds)
-    t0 = time.perf_counter()
-    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
-    seconds = time.perf_counter() - t0
-    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
-    on_test, on_held = evaluate(mean, ds.subset(test)), evaluate(mean, held)
+    ens, result, seconds, on_test, on_held = train_repeat("csc_lstm", ds, held, r, cfg)
+    seeds = ens_seeds(r, cfg)
     res = {"task": task, "repeat": r, "data_seed": r, "weight_seeds": seeds, "split_seed": r,
            "held_out_seed": HELD_OUT_SEED, "members": len(seeds),
            "test_return_mse": on_test["return_mse"], "test_reward_mse": on_test["reward_mse"],

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from any_dataset import ens_seeds, train_repeat
 from reproduce_tables import mean_sem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,22 +65,12 @@ def run_model(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import evaluate, load_train_config, model_config, save_checkpoint
-    from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
-    from nmrm_ros.mil.training import train_ensemble
+    from nmrm_ros.mil import load_train_config, save_checkpoint
 
     ds, held = dataset(N, r), dataset(HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(TASK, seed=r)
-    seeds = [r + 1000 * j for j in range(cfg.members)]
-    train, val, test = split_indices(len(ds), r)
-    ens = init_ensemble(model_config(arch, TASK, ds.state_size, dropout=cfg.dropout,
-                                     hidden_size=cfg.hidden_size), seeds)
-    t0 = time.perf_counter()
-    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
-    seconds = time.perf_counter() - t0
-    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
-    on_test, on_held = evaluate(mean, ds.subset(test)), evaluate(mean, held)
+    ens, result, seconds, on_test, on_held = train_repeat(arch, ds, held, r, cfg)
+    seeds = ens_seeds(r, cfg)
     path = checkpoint_path(arch, r)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(ens, path, task=TASK, ensemble={"members": len(seeds), "seeds": seeds, "serving_member": 0})
