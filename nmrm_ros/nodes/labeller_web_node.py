@@ -111,9 +111,7 @@ class LabellerWebNode(Node):
             raise NodeError(f"cannot serve on {p['host']}:{p['port']}: {exc.strerror or exc}") from None
         if allowed_hosts is not None:  # the Host a browser sends for this address and port
             names = LOOPBACK if p["host"] in LOOPBACK else (p["host"],)
-            allowed_hosts.update(f"[{n}]:{self.server.port}" if ":" in n else f"{n}:{self.server.port}"
-                                 for n in names)
-            allowed_hosts.update(n.lower() for n in list(allowed_hosts))
+            allowed_hosts.update((f"[{n}]" if ":" in n else n).lower() + f":{self.server.port}" for n in names)
         url = f"http://{p['host']}:{self.server.port}/" + (f"?token={token}" if token else "")
         self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller {self.labeller}, "
                                f"{len(self.queue.done_before)} episode(s) labelled before, labels to "
