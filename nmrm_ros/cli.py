@@ -502,7 +502,7 @@ def discovery_server(
     port: int = typer.Option(11811, min=1025, max=65535, help="UDP port (Fast DDS: 1025-65535)"),
 ) -> None:
     """Run a Fast DDS Discovery Server (for networks without multicast); nodes then need
-    ROS_DISCOVERY_SERVER=ADDRESS:PORT (README "Several machines"). Ctrl-C stops it."""
+    ROS_DISCOVERY_SERVER=ADDRESS:PORT (docs/guide/several-machines.md). Ctrl-C stops it."""
     import os
 
     from .ros.discovery_server import server_command

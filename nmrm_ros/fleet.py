@@ -3,8 +3,8 @@
 Each robot i (namespace /robot<i>) runs `launch_scripts/fleet_robot.launch.yaml` (env_sim, reward
 model, oracle labeller) with seed `seed + i * ROBOT_SEED_STRIDE`, so no two robots play the same
 episode; `launch_scripts/fleet_learner.launch.yaml` runs the learning agent over all of them and
-the fleet's recorder. On several machines, start the same launch files there instead (README
-"Several machines").
+the fleet's recorder. On several machines, start the same launch files there instead
+(docs/guide/several-machines.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """labeller_oracle: watches trajectories and publishes their returns, computed by the task's oracle.
 
-THE LABELLER CONTRACT (what a human-labelling node implements too; see README.md):
+THE LABELLER CONTRACT (what a human-labelling node implements too; see docs/guide/graph.md):
 - subscribes to `nmrm/observation` (EnvObservation; may also use `nmrm/action`);
 - an episode is identified by (task, episode) of its observations; it is complete when the
   observation with `terminated` or `truncated` set arrives, whose `step` is the episode length L;

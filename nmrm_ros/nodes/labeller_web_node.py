@@ -1,6 +1,6 @@
 """labeller_web: a person labels episodes on a local web page; each label is published and stored.
 
-Follows episodes on `nmrm/observation` exactly as the labeller contract says (README.md; the
+Follows episodes on `nmrm/observation` exactly as the labeller contract says (docs/guide/graph.md; the
 oracle labeller does the same): an episode is complete at its final observation, episodes that
 could not be followed in full are not offered. Finished episodes wait in a queue on the page
 (http://HOST:PORT/), oldest first; the person watches one (its path over the arena, play / pause /

@@ -2,7 +2,7 @@
 
 For networks without multicast: one process (`nmrm discovery-server`, or `fastdds discovery` on a
 ROS 2 install) is the meeting point, and every node finds the others through it when
-`ROS_DISCOVERY_SERVER=ADDRESS:PORT` is set in its environment (README "Several machines").
+`ROS_DISCOVERY_SERVER=ADDRESS:PORT` is set in its environment (docs/guide/several-machines.md).
 
 The wheel installs `fast-discovery-server` in the venv's bin, but its run-time library path points
 where the wheel's libraries are not ($ORIGIN/../../../ros_fastrtps.libs), so run from bin it

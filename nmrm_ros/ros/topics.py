@@ -1,4 +1,4 @@
-"""Topic names and QoS of the nmrm graph (the contract documented in README.md).
+"""Topic names and QoS of the nmrm graph (the contract: docs/guide/graph.md).
 
 Names are relative ("nmrm/observation"), so a node's namespace or a remapping moves them.
 All topics are reliable, volatile and keep-all: no message is ever dropped for lack of queue
