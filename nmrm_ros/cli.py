@@ -470,6 +470,7 @@ def check(
     eval_episodes: int = typer.Option(50, min=1, help="greedy and random episodes compared"),
     seed: int = typer.Option(0, min=0, help="agent seed (and of the check's episodes)"),
     memory_only: bool = typer.Option(False, help="skip the agent run (the memory check only)"),
+    oracle: str = typer.Option("", help=ORACLE_HELP + "; the checks compare the model with it"),
 ) -> None:
     """Is this model fit to train an agent on? The memory check (does the served state separate
     what the oracle's hidden state separates) and the reward-hacking check (a short agent's
@@ -482,15 +483,21 @@ def check(
         model, meta = load_checkpoint(checkpoint)
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc)) from None
+    from .oracles import make_oracle
+
     task = meta["task"]
     _bad_input(check_task, task)
+    _bad_input(make_oracle, task, oracle)
     typer.echo(f"checking {checkpoint} ({model.config.architecture} on {task})")
-    results = [memory_check(model, task, seed=12345 + seed)]
-    typer.echo(results[-1].summary())
-    if not memory_only:
-        results.append(hacking_check(checkpoint, task, episodes=agent_episodes,
-                                     eval_episodes=eval_episodes, seed=seed))
+    try:
+        results = [memory_check(model, task, seed=12345 + seed, oracle=oracle)]
         typer.echo(results[-1].summary())
+        if not memory_only:
+            results.append(hacking_check(checkpoint, task, episodes=agent_episodes,
+                                         eval_episodes=eval_episodes, seed=seed, oracle=oracle))
+            typer.echo(results[-1].summary())
+    except ValueError as exc:  # a user's oracle that misbehaves (OracleError), a checkpoint that does not fit
+        raise typer.BadParameter(str(exc)) from None
     if not all(r.passed for r in results):
         raise typer.Exit(1)
 

@@ -142,7 +142,7 @@ def _nmrm(*args, timeout=300):
                           timeout=timeout)
 
 
-def test_your_own_task_from_dataset_to_an_agent_learning_through_the_graph(ros_domain, tmp_path):
+def test_your_own_task_from_dataset_to_an_agent_learning_through_the_graph(ros_domain, tmp_path, oracles):
     """The README's path for your own task: screened bag -> CSC model -> served through the graph
     (learn.launch.yaml: env_sim, reward_model, the user's oracle labelling, an agent learning, a
     recorder) -> the recorded bag, whose episodes vary in length, trains a model again."""
@@ -156,6 +156,14 @@ def test_your_own_task_from_dataset_to_an_agent_learning_through_the_graph(ros_d
     res = _nmrm("train", "--bag", bag, "--out", tmp_path / "m", "--epochs", 2, "--ensemble", 1)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "training csc_lstm on gym:CartPole-v1: 60 trajectories" in res.stdout, res.stdout
+    # nmrm check with the user's oracle: its hidden state is what the served state must separate
+    res = _nmrm("check", "--checkpoint", tmp_path / "m", "--oracle", EXAMPLE, "--memory-only")
+    assert res.returncode in (0, 1) and "memory: the served state separates" in res.stdout, res.stdout + res.stderr
+    res = _nmrm("check", "--checkpoint", tmp_path / "m", "--memory-only")
+    assert res.returncode == 2 and "give your own as --oracle" in res.stderr, res.stderr
+    res = _nmrm("check", "--checkpoint", tmp_path / "m", "--oracle", f"{oracles}/user_oracles.py:running_max",
+                "--memory-only")
+    assert res.returncode == 0 and "memory: not checked: the oracle returns no hidden state" in res.stdout, res.stdout
     learn = tmp_path / "learn"
     res = _nmrm("launch", ROOT / "launch_scripts" / "learn.launch.yaml", f"task:={CARTPOLE}", f"oracle:={EXAMPLE}", "mode:=model",
                 f"checkpoint:={tmp_path / 'm'}", "episodes:=12", f"out:={learn}", timeout=240)

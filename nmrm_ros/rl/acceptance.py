@@ -42,12 +42,16 @@ class MemoryCheck:
     separated: float
     h_only: float | None
     min_separated: float = 0.9
+    oracle_hidden: bool = True  # False: the oracle gives no hidden state, so nothing can be checked
 
     @property
     def passed(self) -> bool:
         return self.pairs == 0 or self.separated >= self.min_separated
 
     def summary(self) -> str:
+        if not self.oracle_hidden:
+            return ("memory: not checked: the oracle returns no hidden state (return (rewards, hidden) "
+                    "from it to check what the served state carries)")
         if self.pairs == 0:
             return "memory: no pairs of close states with different oracle hidden states (nothing to separate)"
         h = "" if self.h_only is None else f" (h' alone: {self.h_only:.0%})"
@@ -113,15 +117,20 @@ def _separated(served: np.ndarray, pairs: np.ndarray, tol: float, min_distance: 
 
 def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, steps: int = 4000,
                  state_tol: float = 0.05, separation_tol: float = 0.1,
-                 min_distance: float = 0.01) -> MemoryCheck:
+                 min_distance: float = 0.01, oracle: str = "") -> MemoryCheck:
     """The memory check on `trajectories` screened trajectories of `task` (data seed `seed`),
-    `steps` steps drawn from them."""
+    `steps` steps drawn from them; `oracle`: a user's oracle function (its hidden state is what
+    must be separated), "" = the task's own."""
     from ..datasets import generate_screened
-    from ..interpret.traces import oracle_traces
     from ..mil.served_state import served_states
+    from ..oracles import make_oracle
 
-    ds = generate_screened(task, trajectories, seed=seed)
-    _, oracle = oracle_traces(task, ds.states)
+    judge = make_oracle(task, oracle)
+    ds = generate_screened(task, trajectories, seed=seed, oracle=oracle)
+    labels = judge.label(ds.states, lengths=ds.lengths)
+    if labels.hidden.shape[-1] == 0:
+        return MemoryCheck(0, 0.0, None, oracle_hidden=False)
+    oracle = labels.hidden
     real = np.argwhere(np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None])
     rng = np.random.default_rng(seed)
     pick = real[rng.choice(len(real), min(steps, len(real)), replace=False)]
@@ -153,16 +162,16 @@ def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarra
 
 
 def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_episodes: int = 50,
-                  seed: int = 0) -> HackingCheck:
+                  seed: int = 0, oracle: str = "") -> HackingCheck:
     """The reward-hacking check: train an agent for `episodes` episodes on the checkpoint's reward
     (agent seed `seed`), then compare learnt and oracle returns of its greedy episodes (and of
-    random ones) on `eval_episodes` new episodes."""
+    random ones) on `eval_episodes` new episodes; `oracle`: a user's oracle function, "" = the task's."""
     from .evaluation import EVAL_SEED
     from .training import train_agent
     from .wrappers import make_reward_env
 
-    run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False)
-    env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED)
+    run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle)
+    env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle)
     agent_l, agent_o = _episodes(env, eval_episodes, EVAL_SEED,
                                  lambda obs: run.model.predict(obs, deterministic=True)[0])
     rng = np.random.default_rng(seed)
