@@ -56,14 +56,15 @@ def nodes_page() -> str:
         if params is None:
             raise DocsError(f"nmrm_ros/nodes/{name}_node.py has no PARAMETERS")
         doc = (module.__doc__ or "").strip()
-        out += [f"## `{name}`", "", "```text", doc, "```", "",
+        first, _, rest = doc.partition("\n")
+        out += [f"## `{name}`", "", first.split(":", 1)[-1].strip(), "",
                 "| parameter | default | minimum | what |", "|---|---|---|---|"]
         for pname, p in params.items():
             if not p.description.strip():
                 raise DocsError(f"node {name}: parameter {pname!r} has no description")
             minimum = "" if p.minimum is None else p.minimum
             out.append(f"| `{pname}` | `{cell(p.default)!s}` | {minimum} | {cell(p.description)} |")
-        out.append("")
+        out += ["", f"How `{name}` works (`nmrm_ros/nodes/{name}_node.py`):", "", "```text", rest.strip(), "```", ""]
     return "\n".join(out)
 
 
