@@ -11,6 +11,30 @@ from pathlib import Path
 
 import typer
 
+def _output_dir(value: Path | None) -> Path | None:
+    """Option callback: an output directory that cannot be written is a one-line error at once."""
+    from .output_paths import check_writable_dir
+
+    if value is not None:
+        try:
+            check_writable_dir(value)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc)) from None
+    return value
+
+
+def _output_file(value: Path | None) -> Path | None:
+    """Option callback: an output file (or checkpoint stem) that cannot be written, likewise."""
+    from .output_paths import check_writable_file
+
+    if value is not None:
+        try:
+            check_writable_file(value)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc)) from None
+    return value
+
+
 app = typer.Typer(
     name="nmrm",
     help="Non-Markovian reward modelling with MIL, served to RL agents over ROS 2.",
@@ -89,7 +113,7 @@ def dataset_screen(
     task: str = typer.Option(..., help=TASK_HELP),
     n: int = typer.Option(5000, min=1, help="trajectories to keep"),
     seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
-    out: Path = typer.Option(None, help="write the dataset here (.npz)"),
+    out: Path = typer.Option(None, help="write the dataset here (.npz)", callback=_output_file),
     oracle: str = typer.Option("", help=ORACLE_HELP),
     key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
     pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
@@ -110,7 +134,7 @@ def dataset_screen(
 def dataset_generate(
     task: str = typer.Option(..., help=TASK_HELP),
     episodes: int = typer.Option(..., min=1, help="number of screened episodes to write"),
-    out: Path = typer.Option(..., help="bag directory to create"),
+    out: Path = typer.Option(..., help="bag directory to create", callback=_output_dir),
     seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
     oracle: str = typer.Option("", help=ORACLE_HELP),
     key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
@@ -141,7 +165,7 @@ def dataset_toy(
     name: str = typer.Option(..., help="toggle_switch | push_switch | dial"),
     n: int = typer.Option(5000, min=1, help="number of bags"),
     seed: int = typer.Option(0, min=0),
-    out: Path = typer.Option(None, help="write the dataset here (.npz)"),
+    out: Path = typer.Option(None, help="write the dataset here (.npz)", callback=_output_file),
 ) -> None:
     """Generate a toy MIL dataset (paper App. C)."""
     from .datasets import make_toy_dataset
@@ -160,7 +184,7 @@ def demo(
     epochs: int = typer.Option(100, min=1, help="max training epochs"),
     agent_episodes: int = typer.Option(150, min=1, help="episodes of the DQN agent trained through the graph"),
     seed: int = typer.Option(0, min=0, help="seed of data, split, weights and agent"),
-    out: Path = typer.Option(Path("runs/demo"), help="output directory (replaced)"),
+    out: Path = typer.Option(Path("runs/demo"), help="output directory (replaced)", callback=_output_dir),
 ) -> None:
     """The main job, end to end on a small task (nmrm_ros/demo.py): collect episodes with the live
     graph, generate screened ones, train a CSC LSTM reward model from the bags, serve it on a replay
@@ -208,7 +232,8 @@ def fleet(
     mode: str = typer.Option("oracle", help="reward of every robot's reward_model: oracle | model"),
     checkpoint: Path = typer.Option(None, help="MIL checkpoint for mode model"),
     seed: int = typer.Option(0, min=0, help="agent seed; robot i's episodes start from seed + i * 100000"),
-    out: Path = typer.Option(Path("runs/fleet"), help="output: OUT/policy (the learner) and OUT/bag (all robots)"),
+    out: Path = typer.Option(Path("runs/fleet"), help="output: OUT/policy (the learner) and OUT/bag (all robots)",
+                             callback=_output_dir),
     save_every: int = typer.Option(50, min=1, help="save the policy every this many fleet episodes"),
     learning_starts: int = typer.Option(-1, min=-1, help="random steps before learning (-1: config/rl.yaml)"),
     save_replay_buffer: bool = typer.Option(False, help="also save OUT/policy/replay_buffer.pkl"),
@@ -218,7 +243,17 @@ def fleet(
     policy from all of them, with one recorder for the fleet (launch_scripts/fleet_*.launch.yaml)."""
     from .fleet import run_fleet
     from .launcher import LaunchError
+    from .mil import CheckpointError, load_checkpoint
 
+    if mode not in ("oracle", "model"):
+        raise typer.BadParameter(f"--mode must be oracle or model, got {mode!r}")
+    if mode == "model":
+        if checkpoint is None:
+            raise typer.BadParameter("--mode model needs --checkpoint")
+        try:
+            load_checkpoint(checkpoint)
+        except CheckpointError as exc:
+            raise typer.BadParameter(str(exc)) from None
     try:
         code = run_fleet(robots, grace=grace, task=task, episodes=episodes, out=out, mode=mode,
                          checkpoint=checkpoint or "", seed=seed, save_every=save_every,
@@ -243,8 +278,7 @@ def bag_info(path: Path = typer.Argument(..., help="bag directory or .mcap file"
             typer.echo(f"{topic:28s} {type_name:34s} {count:8d}")
         sum(1 for _ in iter_raw(path))  # every chunk read and its CRC checked
     except BagError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(1) from None
+        raise typer.BadParameter(str(exc)) from None
     try:
         _, report = load_bag_dataset([path])
         typer.echo(f"episodes: {report}")
@@ -313,7 +347,8 @@ def train(
     bag: list[Path] = typer.Option(None, help="bag(s) of recorded episodes (repeatable)"),
     labeller: str = typer.Option(None, help="with --bag: whose labels to use if several labelled"),
     arch: str = typer.Option("csc_lstm", help="instance_nn | embedding_lstm | instance_lstm | csc_lstm"),
-    out: Path = typer.Option(Path("runs/model"), help="checkpoint path (writes OUT.pt and OUT.json)"),
+    out: Path = typer.Option(Path("runs/model"), help="checkpoint path (writes OUT.pt and OUT.json)",
+                             callback=_output_file),
     n: int = typer.Option(5000, min=1, help="trajectories to generate (without --data)"),
     data_seed: int = typer.Option(0, min=0, help="seed of the generated data"),
     seed: int = typer.Option(0, min=0, help="seed of the weight initialisation and batch order"),
@@ -321,7 +356,8 @@ def train(
     epochs: int = typer.Option(None, min=1, help="override max_epochs"),
     lr: float = typer.Option(None, help="override the learning rate"),
     batch_size: int = typer.Option(None, min=1, help="override the batch size"),
-    config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)"),
+    config: Path = typer.Option(None, help="training config YAML (default config/mil_training.yaml)",
+                                exists=True, dir_okay=False, readable=True),
     ensemble: int = typer.Option(None, min=1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1; "
                                  "served as their mean reward); default: the task's `members` in the config"),
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
@@ -339,7 +375,6 @@ def train(
         raise typer.BadParameter(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
     if split_mode not in SPLIT_MODES:
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
-    _require_writable(out.parent)
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
                     reward_l1=reward_l1)
     if task:  # the settings are checked before any data is loaded or generated
@@ -443,7 +478,8 @@ def evaluate(
 @app.command()
 def explain(
     checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
-    out: Path = typer.Option(Path("runs/explain"), help="directory for the PNGs and index.html"),
+    out: Path = typer.Option(Path("runs/explain"), help="directory for the PNGs and index.html",
+                             callback=_output_dir),
     bag: Path = typer.Option(None, help="a recording: embeddings of its episodes and per-episode views"),
     task: str = typer.Option(None, help="task (default: the checkpoint's)"),
     n: int = typer.Option(300, min=1, help="trajectories for the hidden-state embedding"),
@@ -535,8 +571,10 @@ def rl_train(
     episodes: int = typer.Option(None, min=1, help="training episodes (default: config/rl.yaml, 400 DQN / 800 SAC)"),
     seed: int = typer.Option(0, min=0, help="seed of the agent (weights, exploration) and of the episodes"),
     envs: int = typer.Option(1, min=1, help="environments stepped together (SB3 DummyVecEnv)"),
-    out: Path = typer.Option(Path("runs/agent"), help="output directory: policy.zip, curve.csv, curve.png"),
-    config: Path = typer.Option(None, help="RL config YAML (default config/rl.yaml)"),
+    out: Path = typer.Option(Path("runs/agent"), help="output directory: policy.zip, curve.csv, curve.png",
+                             callback=_output_dir),
+    config: Path = typer.Option(None, help="RL config YAML (default config/rl.yaml)", exists=True,
+                                dir_okay=False, readable=True),
 ) -> None:
     """Train the paper's agent (double DQN, or SAC for Lunar Lander) on a non-Markovian reward;
     every episode is judged by the oracle (curve.csv)."""
@@ -584,19 +622,6 @@ def rl_evaluate(
     except (CheckpointError, ValueError) as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(f"{task}, reward {result.reward}: {result.summary()}")
-
-
-def _require_writable(directory: Path) -> None:
-    """Create `directory` (with its parents) and check a file can be written there: a clean error
-    now, not a traceback after the work."""
-    import tempfile
-
-    try:
-        Path(directory).mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=directory):
-            pass
-    except OSError as exc:
-        raise typer.BadParameter(f"cannot write to {directory}: {exc.strerror or exc}") from None
 
 
 def _bad_input(fn, *args, **kwargs):
