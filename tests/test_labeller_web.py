@@ -40,7 +40,7 @@ def test_queue_validates_labels_and_keeps_corrections():
         q.label(7, 1.0)
     assert q.label(3, -50)[0].corrections == 0
     assert q.label(3, 12.5)[0].corrections == 1  # a correction: the latest counts
-    assert q.labels[3].value == 12.5 and [e.episode for e in q.pending()] == [1]
+    assert q.label_of(3).value == 12.5 and [e.episode for e in q.pending()] == [1]
     assert not q.add(3, np.zeros((101, 2)))  # labelled: not asked again
 
 

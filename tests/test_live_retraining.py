@@ -188,7 +188,7 @@ def test_labels_retrain_and_the_reward_model_serves_the_new_version(ros_domain, 
     out_dir = tmp_path / "checkpoints"
     reward = start("reward_model", task="key", mode="model", checkpoint=a)
     trainer = start("trainer", task="key", retrain_every=2, members=2, max_epochs=3, checkpoint=a,
-                    out_dir=out_dir, labeller_web="''")
+                    out_dir=out_dir, labeller_web="''", labeller="[person/test, person/nobody]")
     driver = Driver()
     sources = None
     try:
@@ -217,6 +217,12 @@ def test_labels_retrain_and_the_reward_model_serves_the_new_version(ros_domain, 
 
     ds = TrajectoryDataset.load(out_dir / ".datasets" / "key_v001.npz")
     assert ds.returns.tolist() == [4.0, 6.0] and ds.meta["labellers"] == ["person/test"]
+    # provenance: the checkpoint records exactly the labels it was built from
+    from nmrm_ros.labelling.label_files import checkpoint_labels
+
+    assert [(r["labeller"], r["source"], r["episode"], r["length"], r["return"])
+            for r in checkpoint_labels(out_dir / "key_v001")] == [("person/test", "", 0, 20, 4.0),
+                                                                  ("person/test", "", 1, 20, 6.0)]
 
 
 def test_a_restarted_trainer_starts_from_the_bags_and_the_newest_version(ros_domain, tmp_path):

@@ -227,8 +227,16 @@ def _episode(messages, labels, oracle, state_size, labeller, report):
     rewards = np.array([oracle[t].reward for t in range(length)], np.float64) if have_oracle else None
     hidden = (np.array([list(oracle[t].hidden) for t in range(length)], np.float64)
               if have_oracle else None)
+    stamp = label.header.stamp
     return (states, by_step[length][0], float(label.return_value), rewards, hidden,
-            int(messages[0].episode)), None
+            int(messages[0].episode), str(label.labeller), int(stamp.sec) * 10**9 + int(stamp.nanosec)), None
+
+
+def label_record(task: str, source: str, episode: int, length: int, value: float, labeller: str,
+                 stamp_ns: int) -> dict:
+    """One label as provenance and export record it: who gave which return to which episode, when."""
+    return {"task": task, "source": source, "episode": int(episode), "length": int(length),
+            "return": float(value), "labeller": labeller, "stamp_ns": int(stamp_ns)}
 
 
 def _stack(task, rows, state_size, report) -> TrajectoryDataset:
@@ -241,7 +249,7 @@ def _stack(task, rows, state_size, report) -> TrajectoryDataset:
     rewards = np.zeros((n, horizon), np.float64)
     hidden = np.zeros((n, horizon, k), np.float64)
     episodes = np.zeros(n, np.int64)
-    for i, (s, f, g, r, h, e, _) in enumerate(rows):
+    for i, (s, f, g, r, h, e, *_) in enumerate(rows):
         lengths[i] = len(s)
         states[i, : len(s)] = s
         final[i] = f
@@ -251,6 +259,7 @@ def _stack(task, rows, state_size, report) -> TrajectoryDataset:
             rewards[i, : len(s)] = r
             hidden[i, : len(s), : h.shape[1]] = h
     meta = {"source": "bags", "report": str(report), "episodes": episodes.tolist(),
-            "sources": [r[6] for r in rows],
+            "sources": [r[8] for r in rows],
+            "labels": [label_record(task, r[8], r[5], len(r[0]), r[2], r[6], r[7]) for r in rows],
             "oracle_ground_truth": report.with_oracle == n}
     return TrajectoryDataset(task, states, lengths, returns, rewards, hidden, final_states=final, meta=meta)

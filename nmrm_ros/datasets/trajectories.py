@@ -10,6 +10,11 @@ from pathlib import Path
 import numpy as np
 
 
+#: meta entries that are lists with one item per trajectory (kept aligned by subset and concatenate):
+#: the episode id, its source (a namespace) and its label's provenance record (who, what, when)
+PER_TRAJECTORY_META = ("episodes", "sources", "labels")
+
+
 @dataclass
 class TrajectoryDataset:
     """n trajectories padded to length L (padding is zero; `lengths` says what is real).
@@ -40,12 +45,17 @@ class TrajectoryDataset:
         return int(self.states.shape[2])
 
     def subset(self, index: np.ndarray) -> "TrajectoryDataset":
-        """The trajectories at `index` (an int array or bool mask), in that order."""
+        """The trajectories at `index` (an int array or bool mask), in that order; the meta lists
+        with one entry per trajectory (PER_TRAJECTORY_META) are picked alike."""
         pick = lambda a: None if a is None else a[index]  # noqa: E731
+        rows = np.arange(len(self))[index]
+        meta = dict(self.meta)
+        for key in PER_TRAJECTORY_META:
+            if isinstance(meta.get(key), list) and len(meta[key]) == len(self):
+                meta[key] = [meta[key][i] for i in rows]
         return TrajectoryDataset(self.task, self.states[index], self.lengths[index],
                                  self.returns[index], self.rewards[index], self.hidden[index],
-                                 pick(self.actions), pick(self.final_states), pick(self.classes),
-                                 dict(self.meta))
+                                 pick(self.actions), pick(self.final_states), pick(self.classes), meta)
 
     def deduplicated(self) -> tuple["TrajectoryDataset", int]:
         """(this dataset without repeated episodes, how many were dropped). Two episodes are the
@@ -63,11 +73,7 @@ class TrajectoryDataset:
                 keep.append(i)
         if len(keep) == len(self):
             return self, 0
-        out = self.subset(np.asarray(keep, dtype=np.int64))
-        episodes = self.meta.get("episodes")
-        if isinstance(episodes, list) and len(episodes) == len(self):
-            out.meta["episodes"] = [episodes[i] for i in keep]
-        return out, len(self) - len(keep)
+        return self.subset(np.asarray(keep, dtype=np.int64)), len(self) - len(keep)
 
     def save(self, path: str | Path) -> Path:
         """Write an .npz (arrays) with the task and meta as JSON inside. Written to a temporary
@@ -114,6 +120,14 @@ def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
                       for a in arrays]
         return np.concatenate(arrays)
 
+    if meta is None:
+        meta = dict(parts[0].meta)
+        for key in PER_TRAJECTORY_META:  # kept only if every part has it, one item per trajectory
+            lists = [p.meta.get(key) for p in parts]
+            if all(isinstance(x, list) and len(x) == len(p) for x, p in zip(lists, parts)):
+                meta[key] = [item for x in lists for item in x]
+            else:
+                meta.pop(key, None)
     return TrajectoryDataset(parts[0].task, cat("states"), cat("lengths"), cat("returns"),
                              cat("rewards"), cat("hidden"), cat("actions"), cat("final_states"),
-                             cat("classes"), dict(parts[0].meta) if meta is None else meta)
+                             cat("classes"), meta)

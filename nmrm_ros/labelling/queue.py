@@ -1,11 +1,15 @@
-"""The episodes waiting for a person's label, and the labels given (no ROS).
+"""The episodes waiting for people's labels, and the labels given (no ROS).
 
 An episode is keyed by (task, episode) as in the labeller contract. `LabelQueue` holds finished
-episodes (states (L+1, state_size), the final one included) and the labels of this labeller;
-`pending()` is the queue (unlabelled, not skipped): oldest first, or, with a scorer (see
-`active.py`), the most informative first, each episode carrying why; `label()` validates a return
-against the task's range and records it (a second label of the same episode is a correction: the
-latest one counts, for training too).
+episodes (states (L+1, state_size), the final one included) and the labels of every person of a
+team (`people`; one person is a team of one, named ""). `pending(person)` is that person's queue:
+oldest first, or, with a scorer (see `active.py`), the most informative first, each episode
+carrying why. `assignment` says who is asked what: "split" (each episode to one person: once
+anyone labelled it, or while someone else has it open, it is not offered to the others) or
+"overlap" (every episode to every person, for agreement). `label()` validates a return against the
+task's range and records it (a person's second label of an episode is a correction: the latest one
+counts, for training too). Gold episodes (`gold`: episodes whose return is known, to check the
+people) are asked of everyone whatever the assignment.
 """
 
 from __future__ import annotations
@@ -43,7 +47,6 @@ class Episode:
     episode: int
     states: np.ndarray          # (L + 1, state_size): steps 0..L, the last one final
     finished_at: float          # wall time (s since the epoch) of the final observation
-    skipped: bool = False
     spread: float | None = None     # the scorer's: std of the members' predicted returns
     predicted: float | None = None  # the scorer's: mean predicted return
 
@@ -63,21 +66,34 @@ class Label:
     episode: int
     value: float
     at: float                   # wall time, s since the epoch
-    corrections: int = 0        # labels of this episode before this one
+    corrections: int = 0        # labels of this episode by this person before this one
+    person: str = ""            # who gave it
+
+
+ASSIGNMENTS = ("split", "overlap")
 
 
 @dataclass
 class LabelQueue:
     task: str
     max_episodes: int = 1000    # oldest finished episodes are dropped beyond this
+    people: tuple = ("",)       # the team's names ("": one unnamed person)
+    assignment: str = "split"   # split | overlap (see the module docstring)
+    take_s: float = 300.0       # split: an episode opened by a person is theirs for this long
     episodes: dict = field(default_factory=dict)    # episode id -> Episode
-    labels: dict = field(default_factory=dict)      # episode id -> latest Label
-    done_before: set = field(default_factory=set)   # labelled in an earlier session (not asked again)
+    labels: dict = field(default_factory=dict)      # (person, episode id) -> latest Label
+    done_before: dict = field(default_factory=dict) # person -> episodes labelled in earlier sessions
     scorer: object = None       # .score(states (L, d)) -> (spread, mean) and .ordering; None: oldest first
 
     def __post_init__(self) -> None:
         self.low, self.high = return_range(self.task)
+        if self.assignment not in ASSIGNMENTS:
+            raise ValueError(f"assignment must be one of {', '.join(ASSIGNMENTS)}, got {self.assignment!r}")
+        self.people = tuple(self.people)
         self.lock = threading.Lock()
+        self.skipped: set = set()   # (person, episode)
+        self.gold: set = set()      # episodes asked of everyone (their returns are known)
+        self.taken: dict = {}       # episode -> (person, until: wall time)
 
     @property
     def ordering(self) -> str:
@@ -96,11 +112,25 @@ class LabelQueue:
             for ep in self.episodes.values():
                 self._score(ep)
 
-    def add(self, episode: int, states: np.ndarray, finished_at: float | None = None) -> bool:
-        """A finished episode; False (and not queued) if it was labelled already."""
+    def _labelled_by(self, episode: int) -> set:
+        """People who labelled `episode`, this session or before (call with the lock held)."""
+        return ({p for p in self.people if (p, episode) in self.labels}
+                | {p for p, done in self.done_before.items() if episode in done})
+
+    def done(self, episode: int) -> bool:
+        """Nobody is to be asked for `episode` any more: split, someone labelled it; overlap, everyone did."""
         with self.lock:
-            if episode in self.labels or episode in self.done_before:
-                return False
+            by = self._labelled_by(episode)
+        return bool(by) if self._split(episode) else set(self.people) <= by
+
+    def _split(self, episode: int) -> bool:
+        return self.assignment == "split" and episode not in self.gold
+
+    def add(self, episode: int, states: np.ndarray, finished_at: float | None = None) -> bool:
+        """A finished episode; False (and not queued) if nobody is to be asked for it any more."""
+        if self.done(episode):
+            return False
+        with self.lock:
             ep = Episode(self.task, int(episode), np.asarray(states, np.float32),
                          time.time() if finished_at is None else finished_at)
             self._score(ep)
@@ -109,12 +139,26 @@ class LabelQueue:
                 del self.episodes[min(self.episodes, key=lambda e: self.episodes[e].finished_at)]
             return True
 
-    def pending(self) -> list:
-        """Unlabelled, unskipped episodes: the largest spread first with a scorer, else (and on
-        ties) oldest first."""
+    def _check_person(self, person: str) -> None:
+        if person not in self.people:
+            raise LabelError(f"{person!r} is not one of this page's people")
+
+    def pending(self, person: str = "") -> list:
+        """`person`'s queue: episodes they have not labelled or skipped (split: nor anyone else
+        labelled, nor someone else has open); the largest spread first with a scorer, else (and
+        on ties) oldest first."""
+        now = time.time()
         with self.lock:
-            waiting = [e for e in self.episodes.values()
-                       if e.episode not in self.labels and not e.skipped]
+            waiting = []
+            for e in self.episodes.values():
+                by = self._labelled_by(e.episode)
+                if person in by or (person, e.episode) in self.skipped:
+                    continue
+                if self._split(e.episode):
+                    holder, until = self.taken.get(e.episode, (person, 0.0))
+                    if by or (holder != person and until > now):
+                        continue
+                waiting.append(e)
         return sorted(waiting, key=lambda e: (-(e.spread or 0.0), e.finished_at))
 
     def get(self, episode: int) -> Episode:
@@ -123,6 +167,16 @@ class LabelQueue:
                 raise LabelError(f"no episode {episode} here")
             return self.episodes[episode]
 
+    def take(self, episode: int, person: str = "") -> Episode:
+        """`person` opens `episode`: with split assignment it is theirs (not offered to the others)
+        for `take_s` seconds, unless someone else has it open already."""
+        ep = self.get(episode)
+        with self.lock:
+            holder, until = self.taken.get(episode, (person, 0.0))
+            if self._split(episode) and (holder == person or until <= time.time()):
+                self.taken[episode] = (person, time.time() + self.take_s)
+        return ep
+
     def validate(self, value) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise LabelError(f"a return must be a finite number, got {value!r}")
@@ -130,21 +184,33 @@ class LabelQueue:
             raise LabelError(f"return {value} is outside [{self.low:g}, {self.high:g}] for {self.task}")
         return float(value)
 
-    def label(self, episode: int, value) -> tuple:
-        """Record a label (or a correction); returns (Label, Episode)."""
+    def label(self, episode: int, value, person: str = "") -> tuple:
+        """Record `person`'s label (or correction); returns (Label, Episode)."""
+        self._check_person(person)
         value = self.validate(value)
         ep = self.get(episode)
         with self.lock:
-            before = self.labels.get(episode)
-            record = Label(episode, value, time.time(), 0 if before is None else before.corrections + 1)
-            self.labels[episode] = record
-            ep.skipped = False
+            before = self.labels.get((person, episode))
+            record = Label(episode, value, time.time(), 0 if before is None else before.corrections + 1, person)
+            self.labels[(person, episode)] = record
+            self.skipped.discard((person, episode))
+            self.taken.pop(episode, None)
         return record, ep
 
-    def skip(self, episode: int) -> None:
-        self.get(episode).skipped = True
-
-    def history(self) -> list:
-        """The labels given in this session, newest first."""
+    def label_of(self, episode: int, person: str = "") -> Label | None:
         with self.lock:
-            return sorted(self.labels.values(), key=lambda r: r.at, reverse=True)
+            return self.labels.get((person, episode))
+
+    def skip(self, episode: int, person: str = "") -> None:
+        self._check_person(person)
+        self.get(episode)
+        with self.lock:
+            self.skipped.add((person, episode))
+            if self.taken.get(episode, ("", 0))[0] == person:
+                del self.taken[episode]
+
+    def history(self, person: str | None = None) -> list:
+        """The labels given in this session (by `person`; None: by everyone), newest first."""
+        with self.lock:
+            return sorted((r for r in self.labels.values() if person is None or r.person == person),
+                          key=lambda r: r.at, reverse=True)

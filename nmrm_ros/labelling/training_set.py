@@ -22,7 +22,8 @@ class TrainingSet:
     max_episodes: int = 20000                          # oldest episodes forgotten beyond this
     episodes: dict = field(default_factory=dict)       # episode id -> states (L, d) float32
     final: dict = field(default_factory=dict)          # episode id -> final observation (d,)
-    labels: dict = field(default_factory=dict)         # (labeller, episode) -> (return, length)
+    labels: dict = field(default_factory=dict)         # (labeller, episode) -> (return, length, stamp ns)
+    source: str = ""                                   # the namespace the episodes and labels come from
 
     def add_episode(self, episode: int, states: np.ndarray) -> None:
         """A finished episode: states (L + 1, d), the final observation last."""
@@ -33,17 +34,17 @@ class TrainingSet:
             oldest = next(iter(self.episodes))
             del self.episodes[oldest], self.final[oldest]
 
-    def add_label(self, labeller: str, episode: int, length: int, value: float) -> bool:
-        """Record a label (a later one of the same labeller and episode replaces it); True if it
-        is new rather than a correction."""
+    def add_label(self, labeller: str, episode: int, length: int, value: float, stamp_ns: int = 0) -> bool:
+        """Record a label given at `stamp_ns` (a later one of the same labeller and episode
+        replaces it); True if it is new rather than a correction."""
         key = (str(labeller), int(episode))
         new = key not in self.labels
-        self.labels[key] = (float(value), int(length))
+        self.labels[key] = (float(value), int(length), int(stamp_ns))
         return new
 
     def joined(self) -> list:
         """[(labeller, episode, return)] of the labels whose episode is here with the same length."""
-        return [(lab, ep, value) for (lab, ep), (value, length) in sorted(self.labels.items())
+        return [(lab, ep, value) for (lab, ep), (value, length, _) in sorted(self.labels.items())
                 if ep in self.episodes and len(self.episodes[ep]) == length]
 
     def dataset(self) -> TrajectoryDataset:
@@ -59,7 +60,12 @@ class TrainingSet:
             states[i, :lengths[i]] = self.episodes[ep]
         final = np.stack([self.final[ep] for _, ep, _ in rows])
         returns = np.array([v for _, _, v in rows], np.float64)
+        from ..bags.episodes import label_record
+
         meta = {"source": "live labels", "episodes": [ep for _, ep, _ in rows],
+                "sources": [self.source] * n,
+                "labels": [label_record(self.task, self.source, ep, lengths[i], value, lab,
+                                        self.labels[(lab, ep)][2]) for i, (lab, ep, value) in enumerate(rows)],
                 "labellers": sorted({lab for lab, _, _ in rows}), "oracle_ground_truth": False}
         return TrajectoryDataset(self.task, states, lengths, returns, np.zeros((n, horizon)),
                                  np.zeros((n, horizon, 0)), final_states=final, meta=meta)

@@ -10,7 +10,13 @@ Routes (JSON unless said; every one behind the access token when there is one):
   GET  /api/episode/{n}/frame/{t}  the frame of step t (image/jpeg or image/png)
   POST /api/label             {"episode": n, "return": x}: label (again: a correction)
   POST /api/skip              {"episode": n}
-  GET  /api/labels            this session's labels, newest first
+  GET  /api/labels            this session's labels of the person asking, newest first
+  GET  /api/team              who labelled how much, the team's agreement (and gold errors)
+
+A page serves one person or a team: `tokens` maps each person's access token to their name, and
+every request is answered for the person whose token it carries (their queue, their labels, their
+name on every label they give). With `assignment` "split" (the queue's) an episode one person has
+open is not offered to the others; "overlap" asks everyone about everything (for agreement).
 
 Safety (Jupyter's defaults are the bar): the `Host` header must name this server (`allowed_hosts`;
 a DNS-rebinding page's host is refused, 403); the token (if any) must come with every request, as
@@ -73,24 +79,40 @@ def _arena(task: str) -> dict | None:
 
 
 TOKEN_COOKIE = "nmrm_token"
+PERSON = web.RequestKey("person", str)  # who the request is from (by its token)
 
 
 def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | None = None,
-             max_body: int = 4096, frames=None, allowed_hosts: set | None = None) -> web.Application:
+             max_body: int = 4096, frames=None, allowed_hosts: set | None = None,
+             tokens: dict | None = None, team: Callable | None = None) -> web.Application:
     """The page's application. `on_label(label, episode)` is called (in the server's thread) for
-    every accepted label, before the answer is sent: it publishes and stores it. `info`: extra
-    fields of /api/info (e.g. the labeller id); `frames`: a FrameStore of rendered frames;
-    `allowed_hosts`: the `Host` values ("name:port", lower case) this server answers to (None:
-    any; the set may be filled once the port is known)."""
+    every accepted label (`label.person` gave it), before the answer is sent: it publishes and
+    stores it. `tokens`: access token -> person (a team; or `token` for the queue's one person;
+    neither: no token, the queue's first person); `info`: extra fields of /api/info;
+    `team()`: extra fields of /api/team (e.g. gold errors); `frames`: a FrameStore of rendered
+    frames; `allowed_hosts`: the `Host` values ("name:port", lower case) this server answers to
+    (None: any; the set may be filled once the port is known)."""
+    if tokens is None and token:
+        tokens = {token: queue.people[0]}
+    if tokens is not None and not set(tokens.values()) <= set(queue.people):
+        raise ValueError("every token must belong to one of the queue's people")
+
+    def _person(given: str) -> str | None:
+        """The person whose token `given` is (compared in constant time), or None."""
+        found = None
+        for known, person in tokens.items():
+            if given and hmac.compare_digest(given.encode(), known.encode()):
+                found = person
+        return found
 
     def _valid(given: str) -> bool:
-        return bool(given) and hmac.compare_digest(given.encode(), token.encode())
+        return _person(given) is not None
 
     async def _refused(request: web.Request) -> web.Response | None:
         host = request.headers.get("Host", "").lower()
         if allowed_hosts is not None and host not in allowed_hosts:
             return _error(403, f"Host {host!r} is not this server's")
-        if token:
+        if tokens:
             given = request.headers.get("X-Token", "")
             if not given:
                 given = request.cookies.get(TOKEN_COOKIE, "")
@@ -98,6 +120,9 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
                     given = request.query.get("token", "")
             if not _valid(given):
                 return _error(401, "missing or wrong access token")
+            request[PERSON] = _person(given)
+        else:
+            request[PERSON] = queue.people[0]
         if request.method not in ("GET", "HEAD"):
             if request.content_type != "application/json":
                 return _error(415, "a request that changes anything must be application/json")
@@ -123,8 +148,9 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         response.headers["X-Content-Type-Options"] = "nosniff"
         response.headers["Referrer-Policy"] = "no-referrer"
         response.headers["Cache-Control"] = "no-store"
-        if token and request.path == "/" and _valid(request.query.get("token", "")):
-            response.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="Strict", path="/")
+        given = request.query.get("token", "")
+        if tokens and request.path == "/" and _valid(given):
+            response.set_cookie(TOKEN_COOKIE, given, httponly=True, samesite="Strict", path="/")
         return response
 
     async def static(request: web.Request) -> web.Response:
@@ -135,20 +161,24 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         return web.Response(text=body, content_type=STATIC[name])
 
     async def api_info(request: web.Request) -> web.Response:
+        person = request[PERSON]
         return web.json_response({"task": queue.task, "range": [queue.low, queue.high],
-                                  "arena": _arena(queue.task), "ordering": queue.ordering, **info})
+                                  "arena": _arena(queue.task), "ordering": queue.ordering, **info,
+                                  "person": person, "labeller": f"person/{person}",
+                                  "team": list(queue.people), "assignment": queue.assignment})
 
     async def api_queue(request: web.Request) -> web.Response:
         return web.json_response({"episodes": [
             {"episode": e.episode, "length": e.length, "finished_at": e.finished_at,
-             "why": e.why, "spread": e.spread, "predicted": e.predicted} for e in queue.pending()]})
+             "why": e.why, "spread": e.spread, "predicted": e.predicted}
+            for e in queue.pending(request[PERSON])]})
 
     async def api_episode(request: web.Request) -> web.Response:
         try:
-            ep = queue.get(int(request.match_info["episode"]))
+            ep = queue.take(int(request.match_info["episode"]), request[PERSON])
         except LabelError as exc:
             return _error(404, str(exc))
-        label = queue.labels.get(ep.episode)
+        label = queue.label_of(ep.episode, request[PERSON])
         return web.json_response({"episode": ep.episode, "length": ep.length,
                                   "states": ep.states.astype(float).round(5).tolist(),
                                   "frames": frames.steps(ep.episode) if frames is not None else [],
@@ -181,7 +211,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
             body = await _body(request)
             if "return" not in body:
                 raise LabelError("missing 'return'")
-            label, episode = queue.label(body["episode"], body["return"])
+            label, episode = queue.label(body["episode"], body["return"], request[PERSON])
         except LabelError as exc:
             return _error(400, str(exc))
         on_label(label, episode)
@@ -191,7 +221,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     async def api_skip(request: web.Request) -> web.Response:
         try:
             body = await _body(request)
-            queue.skip(body["episode"])
+            queue.skip(body["episode"], request[PERSON])
         except LabelError as exc:
             return _error(400, str(exc))
         return web.json_response({"episode": body["episode"], "skipped": True})
@@ -199,7 +229,19 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     async def api_labels(request: web.Request) -> web.Response:
         return web.json_response({"labels": [
             {"episode": r.episode, "return": r.value, "at": r.at, "corrections": r.corrections}
-            for r in queue.history()]})
+            for r in queue.history(request[PERSON])]})
+
+    async def api_team(request: web.Request) -> web.Response:
+        from .agreement import label_report
+
+        records = [{"task": queue.task, "source": "", "episode": r.episode, "length": 1,
+                    "return": r.value, "labeller": f"person/{r.person}", "stamp_ns": int(r.at * 1e9)}
+                   for r in queue.history()]
+        report = label_report(records)
+        people = [{"person": p, "labels": report["labellers"].get(f"person/{p}", {}).get("labels", 0)}
+                  for p in queue.people]
+        return web.json_response({"people": people, "assignment": queue.assignment,
+                                  "agreement": report["agreement"], **(team() if team else {})})
 
     app = web.Application(middlewares=[guard], client_max_size=max_body)
     app.add_routes([web.get("/", static), web.get("/static/{name}", static),
@@ -207,7 +249,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
                     web.get(r"/api/episode/{episode:\d+}", api_episode),
                     web.get(r"/api/episode/{episode:\d+}/frame/{step:\d+}", api_frame),
                     web.post("/api/label", api_label), web.post("/api/skip", api_skip),
-                    web.get("/api/labels", api_labels)])
+                    web.get("/api/labels", api_labels), web.get("/api/team", api_team)])
     return app
 
 

@@ -21,6 +21,17 @@ Rendered frames on `nmrm/frame` (env_sim `render:=true`) are kept (`frames_mb`) 
 plays an episode that has them as a video, with the same controls. They are not kept on disk:
 after a restart, the episodes offered again have their states only.
 
+A team: `people` names several people (e.g. [alice, bob]); each gets an access token of their
+own, printed at start as their own URL (and kept in `labels_dir`/.team_tokens.json, readable by
+you only, so a restarted page keeps the URLs), and every label is `person/<name>` of whoever gave
+it, stored in that person's labels bag. `assignment` split (default): each episode goes to one
+person (one someone has open is theirs for `take_s` s); overlap: everyone is asked about every
+episode, for agreement. The page shows who labelled how much and how far people agree
+(`/api/team`; `nmrm labels report` gives the same for any labels bags). `gold_every` N: every
+N-th episode is a gold episode, asked of everyone, whose true return the oracle (the task's, or
+`oracle`) knows: each person's error on them is shown, and the true returns are written to a
+`gold_oracle_*` bag in `labels_dir` (not published), so `nmrm labels report` can check people later.
+
 Safety (as Jupyter's): binds 127.0.0.1 unless `host` says otherwise; every request needs the
 access token (`token`, or one generated and printed in the URL at start; `require_token:=false`
 drops it on 127.0.0.1 only), the Host header must name this server, and a request that changes
@@ -50,6 +61,11 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 PARAMETERS = {
     "task": Param("key", "task of the episodes to label"),
     "person": Param("anonymous", "who labels: the labels' labeller id is person/<person>"),
+    "people": Param([""], "a team: the names of its people, each with a token of their own ([''] = person alone)"),
+    "assignment": Param("split", "split: each episode to one person | overlap: every episode to everyone"),
+    "take_s": Param(300.0, "split: an episode a person has open is theirs for this many seconds", 1.0),
+    "gold_every": Param(0, "every this many-th episode is a gold episode (its oracle return known; 0 = none)", 0),
+    "oracle": Param("", "gold episodes: your own oracle function, <module>:<function> ('' = the task's)"),
     "host": Param("127.0.0.1", "address the page is served on (not loopback: a token is required)"),
     "port": Param(8080, "TCP port of the page (0: any free port, printed at start)", 0),
     "token": Param("", "access token; '' = one generated and printed in the page's URL at start"),
@@ -74,24 +90,42 @@ class LabellerWebNode(Node):
 
         self.info = require_task(p["task"])
         self.task = p["task"]
-        person = str(p["person"]).strip()
-        if not person or "/" in person or len(person) > 64:
-            raise NodeError(f"person must be a short name without '/', got {person!r}")
-        self.labeller = f"person/{person}"
-        token = str(p["token"])
-        if not token and (p["host"] not in LOOPBACK or p["require_token"]):
-            token = secrets.token_urlsafe(24)
-        self.queue = LabelQueue(self.task, max_episodes=int(p["max_episodes"]))
+        team = [str(x).strip() for x in p["people"] if str(x).strip()]
+        people = team or [str(p["person"]).strip()]
+        for person in people:
+            if not person or "/" in person or len(person) > 64 or person != person.strip():
+                raise NodeError(f"a person's name must be short and without '/', got {person!r}")
+        if len(set(people)) != len(people):
+            raise NodeError(f"people must be different names, got {people}")
+        if p["assignment"] not in ("split", "overlap"):
+            raise NodeError(f"assignment must be split or overlap, got {p['assignment']!r}")
+        self.people = people
+        self.labeller = f"person/{people[0]}"
+        tokens = self._tokens(p, people, bool(team))
+        self.queue = LabelQueue(self.task, max_episodes=int(p["max_episodes"]), people=tuple(people),
+                                assignment=p["assignment"], take_s=float(p["take_s"]))
+        self.gold_every = int(p["gold_every"])
+        self.gold_returns: dict = {}
+        self.finished = 0
+        if self.gold_every:
+            from ..oracles import make_oracle
+
+            try:
+                self.gold_oracle = make_oracle(self.task, str(p["oracle"]))
+            except ValueError as exc:
+                raise NodeError(f"gold_every needs an oracle: {exc}") from None
         if p["checkpoint"]:
             error = self._use_checkpoint(p["checkpoint"])
             if error:
                 raise NodeError(error)
         live_parameter(self, PARAMETERS, "checkpoint", lambda value: self._use_checkpoint(str(value)))
         topic = self.resolve_topic_name(TRAJECTORY_RETURN)
-        self.store = LabelStore(p["labels_dir"], self.labeller, topic=topic)
-        self.queue.done_before = self.store.labelled_episodes(self.task)
-        for session in self.store.repaired:
+        self.stores = {person: LabelStore(p["labels_dir"], f"person/{person}", topic=topic) for person in people}
+        self.store = self.stores[people[0]]
+        self.queue.done_before = {person: s.labelled_episodes(self.task) for person, s in self.stores.items()}
+        for session in {r for s in self.stores.values() for r in s.repaired}:
             self.get_logger().warning(f"repaired the labels bag of an interrupted session: {session}")
+        self.gold_store = LabelStore(p["labels_dir"], "gold/oracle", topic=topic) if self.gold_every else None
         self.waiting = WaitingEpisodes(Path(p["labels_dir"]) / WAITING_DIR, self.task)
         self._offer_waiting_episodes(int(p["max_episodes"]))
         self.follower = EpisodeFollower()
@@ -101,27 +135,32 @@ class LabellerWebNode(Node):
         self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
         self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
         allowed_hosts: set | None = None if p["host"] in ("0.0.0.0", "::") else set()
-        app = make_app(self.queue, self.on_label, {"labeller": self.labeller}, token=token or None,
-                       frames=self.frames, allowed_hosts=allowed_hosts)
+        app = make_app(self.queue, self.on_label, {}, tokens=tokens or None, frames=self.frames,
+                       allowed_hosts=allowed_hosts, team=self._gold_report)
         self.server = WebServer(app, p["host"], int(p["port"]))
         try:
             self.server.start()
         except OSError as exc:
-            self.store.close()
+            for store in self.stores.values():
+                store.close()
             raise NodeError(f"cannot serve on {p['host']}:{p['port']}: {exc.strerror or exc}") from None
         if allowed_hosts is not None:  # the Host a browser sends for this address and port
             names = LOOPBACK if p["host"] in LOOPBACK else (p["host"],)
             allowed_hosts.update((f"[{n}]" if ":" in n else n).lower() + f":{self.server.port}" for n in names)
-        url = f"http://{p['host']}:{self.server.port}/" + (f"?token={token}" if token else "")
-        self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller {self.labeller}, "
-                               f"{len(self.queue.done_before)} episode(s) labelled before, labels to "
-                               f"{self.store.path})")
+        base = f"http://{p['host']}:{self.server.port}/"
+        by_person = {person: tok for tok, person in (tokens or {}).items()}
+        for person in people:
+            url = base + (f"?token={by_person[person]}" if person in by_person else "")
+            self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller person/{person}, "
+                                   f"{len(self.queue.done_before[person])} episode(s) labelled before, "
+                                   f"labels to {self.stores[person].path})")
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
 
     def _offer_waiting_episodes(self, max_episodes: int) -> None:
         """Queue the unlabelled episodes an earlier run of this node kept."""
-        kept, errors = self.waiting.load(self.queue.done_before, max_episodes)
+        before = set().union(*self.queue.done_before.values())
+        kept, errors = self.waiting.load({e for e in before if self.queue.done(e)}, max_episodes)
         for line in errors:
             self.get_logger().warning(f"kept episode not offered: {line}")
         offered = 0
@@ -164,6 +203,10 @@ class LabellerWebNode(Node):
         if msg.terminated or msg.truncated:
             self.follower.finish()
             states, finished_at = np.stack(self.states), time.time()
+            if msg.step > 0:
+                self.finished += 1
+                if self.gold_every and self.finished % self.gold_every == 0:
+                    self._make_gold(int(msg.episode), states)
             if msg.step > 0 and self.queue.add(int(msg.episode), states, finished_at=finished_at):
                 try:
                     self.waiting.save(int(msg.episode), states, finished_at)
@@ -172,6 +215,60 @@ class LabellerWebNode(Node):
                                               f"not offer it again): {exc}")
                 self.get_logger().info(f"episode {msg.episode} ({msg.step} steps) waits for a label")
             self.states = []
+
+    def _make_gold(self, episode: int, states: np.ndarray) -> None:
+        """Episode `episode` is gold: its oracle return is kept (and written to the gold bag), and
+        it is asked of everyone."""
+        from ..oracles import OracleError
+
+        try:
+            value = float(self.gold_oracle.label(states[None, :-1]).returns[0])
+        except (OracleError, ValueError) as exc:
+            self.get_logger().warning(f"episode {episode} is not a gold episode: {exc}")
+            return
+        self.gold_returns[episode] = value
+        self.queue.gold.add(episode)
+        self.gold_store.append(self.task, episode, len(states) - 1, value)
+
+    def _gold_report(self) -> dict:
+        """/api/team's gold figures: per person, gold episodes labelled and the mean absolute error."""
+        gold = {}
+        for person in self.people:
+            errs = [abs(r.value - self.gold_returns[r.episode]) for r in self.queue.history(person)
+                    if r.episode in self.gold_returns]
+            gold[person] = {"n": len(errs), "mae": float(np.mean(errs)) if errs else None}
+        return {"gold": gold, "gold_episodes": len(self.gold_returns)}
+
+    def _tokens(self, p: dict, people: list, team: bool) -> dict:
+        """Access token -> person. One person: `token`, or one generated (none with
+        require_token:=false on loopback). A team: a token per person, kept in labels_dir."""
+        import json
+        import os
+
+        if not team:
+            token = str(p["token"])
+            if not token and (p["host"] not in LOOPBACK or p["require_token"]):
+                token = secrets.token_urlsafe(24)
+            return {token: people[0]} if token else {}
+        if str(p["token"]):
+            raise NodeError("token is for one person; a team (people) gets a token per person")
+        path = Path(p["labels_dir"]) / ".team_tokens.json"
+        kept = {}
+        try:
+            kept = {str(k): str(v) for k, v in json.loads(path.read_text()).items()}
+        except (OSError, ValueError, AttributeError):
+            pass
+        by_person = {person: tok for person, tok in kept.items() if person in people and len(tok) >= 20}
+        for person in people:
+            by_person.setdefault(person, secrets.token_urlsafe(24))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w") as f:
+                json.dump(by_person, f)
+        except OSError as exc:
+            raise NodeError(f"cannot keep the team's tokens in {path}: {exc.strerror or exc}") from None
+        return {tok: person for person, tok in by_person.items()}
 
     def on_frame(self, msg: CompressedImage) -> None:
         from ..tasks.frames import FRAME_FORMATS, parse_frame_id
@@ -184,19 +281,25 @@ class LabellerWebNode(Node):
     # -- labels (web server's thread) --------------------------------------------------------------
     def on_label(self, label, episode) -> None:
         stamp = time.time_ns()
-        self.store.append(self.task, episode.episode, episode.length, label.value, stamp)
-        self.waiting.remove(episode.episode)
+        labeller = f"person/{label.person}"
+        self.stores[label.person].append(self.task, episode.episode, episode.length, label.value, stamp)
+        if self.queue.done(episode.episode):
+            self.waiting.remove(episode.episode)
         out = TrajectoryReturn(task=self.task, episode=episode.episode, length=episode.length,
-                               return_value=float(label.value), labeller=self.labeller)
+                               return_value=float(label.value), labeller=labeller)
         out.header.stamp.sec, out.header.stamp.nanosec = stamp // 10**9, stamp % 10**9
         self.return_pub.publish(out)
         what = "corrected" if label.corrections else "labelled"
-        self.get_logger().info(f"{what} episode {episode.episode}: return {label.value:g}")
+        who = f"{labeller} " if len(self.people) > 1 else ""
+        self.get_logger().info(f"{who}{what} episode {episode.episode}: return {label.value:g}")
 
     def close(self) -> None:
         self.server.stop()
-        self.store.close()
-        self.get_logger().info(f"{self.store.written} label(s) this session, in {self.store.path}")
+        for store in self.stores.values():
+            store.close()
+            self.get_logger().info(f"{store.written} label(s) this session, in {store.path}")
+        if self.gold_store is not None:
+            self.gold_store.close()
 
 
 def main(args=None) -> int:

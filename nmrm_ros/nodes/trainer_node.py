@@ -1,15 +1,17 @@
 """trainer: retrains the MIL reward model as labels arrive, and has the reward model reload it.
 
 Follows episodes on `nmrm/observation` (as the labeller contract says) and labels on
-`nmrm/trajectory_return` (those of `labeller`, a labeller id or a prefix such as `person/`; '' =
-any); the latest label per labeller and episode counts, so a correction replaces what it
+`nmrm/trajectory_return` (those of `labeller`: labeller ids or prefixes such as `person/`, e.g.
+`[person/alice, person/bob]` to use only the labels of the people a team trusts; '' = any); the
+latest label per labeller and episode counts, so a correction replaces what it
 corrects. Every `retrain_every` new labels it trains a `members`-member ensemble on all the
 labelled episodes in a child process (`python -m nmrm_ros.mil.retrain`, warm-started from the
 previous version: the newest in `out_dir`, else `checkpoint`), writes the checkpoint
 `out_dir/<task>_vNNN` (numbering goes on after the versions already there) and sets the `checkpoint` parameter of
 `reward_model` (which swaps it in at its next episode start) and of `labeller_web` (which orders
 its queue by the new members' disagreement). Labels that arrive during a training count towards
-the next one.
+the next one. Every version records the labels it was built from (labeller, source, episode,
+return, when) in its checkpoint's JSON (`nmrm labels report --checkpoint C` lists them).
 
 `bags`: recordings and labels bags read at start (e.g. an earlier session's), so a restarted
 trainer starts from what was labelled before. The child process dies with the node.
@@ -38,7 +40,8 @@ from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
     "task": Param("key", "task of the episodes and labels"),
-    "labeller": Param("person/", "labels used: a labeller id, or a prefix ending in '/'; '' = any"),
+    "labeller": Param(["person/"], "labels used: labeller ids, or prefixes ending in '/' (e.g. "
+                                   "[person/alice, person/bob]); '' = any"),
     "retrain_every": Param(10, "retrain after this many new labelled episodes", 1),
     "architecture": Param("csc_lstm", "csc_lstm | instance_lstm | embedding_lstm | instance_nn"),
     "members": Param(5, "ensemble members (their disagreement orders the labelling queue)", 1),
@@ -77,8 +80,8 @@ class TrainerNode(Node):
         if p["architecture"] not in ARCHITECTURES:
             raise NodeError(f"unknown architecture {p['architecture']!r}; known: {', '.join(ARCHITECTURES)}")
         self.p = p
-        self.labeller = str(p["labeller"])
-        self.set = TrainingSet(self.task, self.info.state_size)
+        self.labellers = [str(x) for x in p["labeller"] if str(x)]
+        self.set = TrainingSet(self.task, self.info.state_size, source=self.get_namespace().rstrip("/"))
         self.out_dir = Path(p["out_dir"])
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.version = self._last_version()
@@ -97,15 +100,15 @@ class TrainerNode(Node):
         self.create_timer(0.5, self.poll)
         self.get_logger().info(
             f"task {self.task}: retraining a {p['members']}-member {p['architecture']} every "
-            f"{p['retrain_every']} new label(s) of {self.labeller or 'any labeller'}; "
+            f"{p['retrain_every']} new label(s) of {', '.join(self.labellers) or 'any labeller'}; "
             f"{len(self.set.joined())} labelled episode(s) from bags; next version "
             f"{self._name(self.version + 1)} in {self.out_dir}, warm-started from {self.latest or 'nothing'}")
 
     # -- inputs ------------------------------------------------------------------------------------
     def _wanted(self, labeller: str) -> bool:
-        if not self.labeller:
+        if not self.labellers:
             return True
-        return labeller.startswith(self.labeller) if self.labeller.endswith("/") else labeller == self.labeller
+        return any(labeller.startswith(w) if w.endswith("/") else labeller == w for w in self.labellers)
 
     def _read_bags(self, bags: list) -> None:
         from ..bags import BagError, iter_decoded
@@ -127,7 +130,7 @@ class TrainerNode(Node):
             for i, ep in enumerate(ds.meta["episodes"]):
                 n = int(ds.lengths[i])
                 self.set.add_episode(ep, np.concatenate([ds.states[i, :n], ds.final_states[i][None]]))
-                self.set.add_label(labeller, ep, n, float(ds.returns[i]))
+                self.set.add_label(labeller, ep, n, float(ds.returns[i]), ds.meta["labels"][i]["stamp_ns"])
 
     def on_observation(self, msg: EnvObservation) -> None:
         kind, state, _ = self.follower.follow(msg, self.task, self.info.state_size)
@@ -149,7 +152,8 @@ class TrainerNode(Node):
         if not np.isfinite(msg.return_value):
             self.get_logger().warning(f"ignoring a non-finite label of episode {msg.episode}")
             return
-        if self.set.add_label(msg.labeller, msg.episode, msg.length, msg.return_value):
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        if self.set.add_label(msg.labeller, msg.episode, msg.length, msg.return_value, stamp):
             self.new_labels += 1
         self.maybe_retrain()
 

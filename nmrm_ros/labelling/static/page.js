@@ -164,6 +164,25 @@ async function refresh(openFirst) {
   if (openFirst && !current && queue.episodes.length) await openEpisode(queue.episodes[0].episode);
 }
 
+// A team: who labelled how much, each person's error on gold episodes, and how far people agree.
+async function refreshTeam() {
+  if (info.team.length < 2) return;
+  const team = await api("/api/team");
+  const body = document.getElementById("team");
+  body.replaceChildren();
+  for (const p of team.people) {
+    const gold = team.gold && team.gold[p.person];
+    const err = gold && gold.n ? `${gold.mae.toPrecision(3)} (${gold.n})` : "–";
+    const tr = el("tr");
+    tr.append(el("td", p.person === info.person ? `${p.person} (you)` : p.person), el("td", p.labels), el("td", err));
+    body.appendChild(tr);
+  }
+  const a = team.agreement;
+  document.getElementById("agreement").textContent = a.episodes
+    ? `agreement: ${a.episodes} episode(s) labelled by two or more, mean difference ${a.mean_abs_diff.toPrecision(3)}`
+    : "agreement: no episode labelled by two or more yet";
+}
+
 async function submit(ev) {
   ev.preventDefault();
   if (!current) return;
@@ -188,6 +207,11 @@ async function main() {
   info = await api("/api/info");
   document.getElementById("who").textContent = `${info.labeller} · task ${info.task}`;
   document.getElementById("ordering").textContent = `ordered: ${info.ordering}`;
+  if (info.team.length > 1) {
+    document.getElementById("team-panel").hidden = false;
+    document.getElementById("assignment").textContent = info.assignment === "split"
+      ? "each episode goes to one of you" : "everyone is asked about every episode";
+  }
   const [lo, hi] = info.range;
   const input = document.getElementById("return");
   if (lo === null) {
@@ -206,7 +230,8 @@ async function main() {
   document.getElementById("dims").toggleAttribute("hidden", !info.task.includes(":"));
   if (info.arena) drawArena();
   await refresh(true);
-  setInterval(() => refresh(!current).catch(showError), 2000);
+  await refreshTeam();
+  setInterval(() => Promise.all([refresh(!current), refreshTeam()]).catch(showError), 2000);
 }
 
 main().catch(showError);
