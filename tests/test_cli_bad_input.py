@@ -6,7 +6,11 @@ import subprocess
 
 import pytest
 
+from pathlib import Path
+
 from graph_helpers import executable
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("args,message", [
@@ -26,10 +30,13 @@ from graph_helpers import executable
     ("train --task key --n 50 --out {tmp}/file/m", "cannot write to"),
     ("rl train --task key --reward oracle --episodes 0", "--episodes"),
     ("check --checkpoint {tmp}/missing", "checkpoint file missing"),
+    ("launch {root}/launch_scripts/collect.launch.yaml nope:=1", "unknown launch argument(s) ['nope']"),
+    ("launch {root}/launch_scripts/collect.launch.yaml task=key", "launch arguments are NAME:=VALUE"),
+    ("launch {tmp}/file", "expected a top-level 'launch:' list"),
 ])
 def test_a_wrong_invocation_is_a_one_line_error(tmp_path, args, message):
     (tmp_path / "file").write_text("not a directory")
-    res = subprocess.run([executable("nmrm"), *args.format(tmp=tmp_path).split()], capture_output=True,
+    res = subprocess.run([executable("nmrm"), *args.format(tmp=tmp_path, root=ROOT).split()], capture_output=True,
                          text=True, timeout=120)
     assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
     assert message in res.stderr and "Traceback" not in res.stderr, res.stderr

@@ -44,6 +44,14 @@ CASES = {
     (("rl", "train"), "--out"): (OUT, "rl train --task key --reward oracle --episodes 1 --out {P}"),
     (("rl", "evaluate"), "--policy"): (IN, "rl evaluate --policy {P} --task key"),
     (("rl", "evaluate"), "--checkpoint"): (IN, "rl evaluate --policy {Z} --task key --checkpoint {P}"),
+    (("labels", "report"), "--bag"): (IN, "labels report --bag {P}"),
+    (("labels", "report"), "--checkpoint"): (IN, "labels report --checkpoint {P}"),
+    (("labels", "report"), "--file"): (IN, "labels report --file {P}"),
+    (("labels", "export"), "--bag"): (IN, "labels export --bag {P} --out {T}/l.jsonl"),
+    (("labels", "export"), "--checkpoint"): (IN, "labels export --checkpoint {P} --out {T}/l.jsonl"),
+    (("labels", "export"), "--out"): (OUT, "labels export --checkpoint {C} --out {P}"),
+    (("labels", "import"), "--file"): (IN, "labels import --file {P} --out {T}/b"),
+    (("labels", "import"), "--out"): (OUT, "labels import --file {L} --out {P}"),
 }
 BAD_INPUTS = ("missing", "text file", "empty directory")
 BAD_OUTPUTS = ("under a file", "not creatable")
@@ -81,6 +89,8 @@ def good(tmp_path_factory):
     code, err = run_nmrm(["rl", "train", "--task", "key", "--reward", "oracle", "--episodes", "1",
                           "--out", str(d / "agent")])
     assert code == 0, err
+    (d / "labels.jsonl").write_text('{"task": "key", "source": "", "episode": 0, "length": 100, "return": 1.0, '
+                                    '"labeller": "person/a", "stamp_ns": 1}\n')
     return d
 
 
@@ -105,7 +115,8 @@ def _alarm(*_):
 def test_a_wrong_path_is_a_one_line_error_before_any_work(tmp_path, good, key, what):
     _, template = CASES[key]
     path = bad_path(tmp_path, what)
-    argv = template.format(P=path, T=tmp_path, C=good / "m", Z=good / "agent" / "policy.zip").split()
+    argv = template.format(P=path, T=tmp_path, C=good / "m", Z=good / "agent" / "policy.zip",
+                           L=good / "labels.jsonl").split()
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(60)
     try:
@@ -118,3 +129,4 @@ def test_a_wrong_path_is_a_one_line_error_before_any_work(tmp_path, good, key, w
     lines = err.strip().splitlines()
     assert code == 2 and "Traceback" not in err and len(lines) == 1, (argv, code, err)
     assert not list(tmp_path.glob("m.*")) and not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert not (tmp_path / "l.jsonl").exists()

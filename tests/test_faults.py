@@ -201,7 +201,7 @@ def test_a_flipped_byte_is_refused_by_train_and_bag_info(tmp_path):
     assert len(offsets) >= 3
     _flip(file, offsets[1] + 200)  # inside the compressed data of the second chunk
     info = _nmrm("bag", "info", str(path))
-    assert info.returncode == 1, info.stdout + info.stderr
+    assert info.returncode == 2, info.stdout + info.stderr  # bad input, as every other
     err = info.stderr.strip().splitlines()
     assert len(err) == 1 and "damaged" in err[0] and f"chunk at byte {offsets[1]}" in err[0], info.stderr
     train = _nmrm("train", "--bag", str(path), "--epochs", "1", "--out", str(tmp_path / "m"))

@@ -206,7 +206,7 @@ class LabelQueue:
         self.get(episode)
         with self.lock:
             self.skipped.add((person, episode))
-            if self.taken.get(episode, ("", 0))[0] == person:
+            if episode in self.taken and self.taken[episode][0] == person:
                 del self.taken[episode]
 
     def history(self, person: str | None = None) -> list:
