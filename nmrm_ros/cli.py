@@ -17,10 +17,7 @@ def _output_dir(value: Path | None) -> Path | None:
     from .output_paths import check_writable_dir
 
     if value is not None:
-        try:
-            check_writable_dir(value)
-        except ValueError as exc:
-            raise typer.BadParameter(str(exc)) from None
+        _bad_input(check_writable_dir, value)
     return value
 
 
@@ -29,10 +26,7 @@ def _output_file(value: Path | None) -> Path | None:
     from .output_paths import check_writable_file
 
     if value is not None:
-        try:
-            check_writable_file(value)
-        except ValueError as exc:
-            raise typer.BadParameter(str(exc)) from None
+        _bad_input(check_writable_file, value)
     return value
 
 
