@@ -48,7 +48,7 @@ def time_to_target(ds, cfg, target: float, cap_s: float) -> dict:
     result = train_ensemble(ens, ds, [(train, val)], cfg, progress=False, on_epoch=on_epoch)
     per_epoch = float(np.median(np.diff([0.0] + epochs)))
     return {"reached": bool(reached), "seconds": reached.get("seconds", epochs[-1]),
-            "epoch": reached.get("epoch", len(epochs)), "best_val": result.best_val_return_mse[0],
+            "epoch": reached.get("epoch", len(epochs)), "best_val": result.best_val_loss[0],
             "per_epoch": per_epoch}
 
 

@@ -57,4 +57,4 @@ def test_each_member_of_a_plateau_ensemble_trains_as_it_would_alone():
     assert together.best_epochs[1] == single.best_epochs[0]
     assert [h["lr_factor"][1] for h in together.history][:single.epochs_run] == \
         [h["lr_factor"][0] for h in single.history]
-    np.testing.assert_allclose(together.best_val_return_mse[1], single.best_val_return_mse[0], rtol=1e-4)
+    np.testing.assert_allclose(together.best_val_loss[1], single.best_val_loss[0], rtol=1e-4)

@@ -15,7 +15,7 @@ import torch
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import evaluate, load_train_config
 from nmrm_ros.mil.models import MILOutput
-from nmrm_ros.mil.training import member_losses
+from nmrm_ros.mil.training import return_loss
 
 
 @pytest.fixture(scope="module")
@@ -61,16 +61,16 @@ def test_time_profile_is_the_planted_zero_sum_error(key_bags):
     assert noisy["reward_mse_time_profile"] < noisy["reward_mse"] / 50  # noise is not a time profile
 
 
-def test_member_losses_formula():
+def test_return_loss_formula():
     cfg = load_train_config("timer", reward_l1=0.05)
     assert cfg.reward_l1 == 0.05
     rewards = torch.tensor([[[1.0, -2.0, 0.0], [0.5, 0.5, 0.0]]])  # (K=1, B=2, T=3)
     out = MILOutput(rewards.sum(-1), rewards, torch.zeros(1, 2, 3, 0))
     labels = torch.tensor([[0.0, 2.0]])
     expected = ((-1.0 - 0.0) ** 2 + (1.0 - 2.0) ** 2) / 2 + 0.05 * (3.0 + 1.0) / 2
-    assert float(member_losses(out, labels, cfg)[0]) == pytest.approx(expected)
+    assert float(return_loss(out, labels, cfg)[0]) == pytest.approx(expected)
     off = load_train_config("timer", reward_l1=0.0)
-    assert float(member_losses(out, labels, off)[0]) == pytest.approx(1.0)
+    assert float(return_loss(out, labels, off)[0]) == pytest.approx(1.0)
 
 
 def test_l1_prior_picks_the_true_decomposition_among_equal_returns(key_bags):
@@ -87,8 +87,8 @@ def test_l1_prior_picks_the_true_decomposition_among_equal_returns(key_bags):
     for c in cs:
         r = rewards + c * f
         out = MILOutput(r.sum(-1), r, torch.zeros(1, *r.shape[1:], 0))
-        with_prior.append(float(member_losses(out, labels, cfg)[0]))
-        without.append(float(member_losses(out, labels, plain)[0]))
+        with_prior.append(float(return_loss(out, labels, cfg)[0]))
+        without.append(float(return_loss(out, labels, plain)[0]))
     assert max(without) < 1e-6  # the returns cannot tell the decompositions apart
     assert int(np.argmin(with_prior)) == cs.index(0.0)
     assert all(a < b for a, b in zip(with_prior[3:], with_prior[4:]))  # grows away from c = 0

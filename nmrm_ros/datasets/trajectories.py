@@ -24,6 +24,10 @@ class TrajectoryDataset:
     (n, L, m) float32, or None; returns (n,) float64 (the labels); rewards (n, L) float64 and
     hidden (n, L, k) float64: the oracle's r_t and h_{t+1} (evaluation only); classes (n,) int64
     screening class ids or None; meta: seed, draws, timing and other facts of generation.
+    preferences (m, 3) float64 or None: pairwise comparisons of trajectories, one row
+    (a, b, p) per comparison: indices a and b into this dataset and p = P(a better than b) as
+    labelled (1: a better, 0: b better, 0.5: equal). A trajectory without a return label (only
+    compared) has return NaN.
     """
 
     task: str
@@ -36,6 +40,7 @@ class TrajectoryDataset:
     final_states: np.ndarray | None = None
     classes: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    preferences: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.states.shape[0])
@@ -55,7 +60,19 @@ class TrajectoryDataset:
                 meta[key] = [meta[key][i] for i in rows]
         return TrajectoryDataset(self.task, self.states[index], self.lengths[index],
                                  self.returns[index], self.rewards[index], self.hidden[index],
-                                 pick(self.actions), pick(self.final_states), pick(self.classes), meta)
+                                 pick(self.actions), pick(self.final_states), pick(self.classes), meta,
+                                 self._preferences_of(rows))
+
+    def _preferences_of(self, rows: np.ndarray) -> np.ndarray | None:
+        """The comparisons between trajectories of `rows` (both ends picked), re-indexed into the
+        subset's order; None without preferences."""
+        if self.preferences is None:
+            return None
+        new = np.full(len(self), -1, dtype=np.int64)
+        new[rows] = np.arange(len(rows))
+        a, b = self.preferences[:, 0].astype(np.int64), self.preferences[:, 1].astype(np.int64)
+        keep = (new[a] >= 0) & (new[b] >= 0)
+        return np.column_stack([new[a[keep]], new[b[keep]], self.preferences[keep, 2]]).astype(np.float64)
 
     def deduplicated(self) -> tuple["TrajectoryDataset", int]:
         """(this dataset without repeated episodes, how many were dropped). Two episodes are the
@@ -83,7 +100,7 @@ class TrajectoryDataset:
         if not path.name.endswith(".npz"):
             path = path.with_name(path.name + ".npz")
         arrays = {k: getattr(self, k) for k in ("states", "lengths", "returns", "rewards", "hidden",
-                                                "actions", "final_states", "classes")
+                                                "actions", "final_states", "classes", "preferences")
                   if getattr(self, k) is not None}
         header = json.dumps({"task": self.task, "meta": self.meta})
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
@@ -101,12 +118,13 @@ class TrajectoryDataset:
             get = lambda k: z[k] if k in z.files else None  # noqa: E731
             return cls(header["task"], z["states"], z["lengths"], z["returns"], z["rewards"],
                        z["hidden"], get("actions"), get("final_states"), get("classes"),
-                       header["meta"])
+                       header["meta"], get("preferences"))
 
 
 def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
     """One dataset of `parts` (same task and state size) in order, padded to the longest length;
-    an optional field (actions, final_states, classes) is kept only if every part has it."""
+    an optional field (actions, final_states, classes) is kept only if every part has it; the
+    parts' preferences are all kept, re-indexed (a comparison is within one part)."""
     if not parts:
         raise ValueError("nothing to concatenate")
     width = max(p.states.shape[1] for p in parts)
@@ -128,6 +146,8 @@ def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
                 meta[key] = [item for x in lists for item in x]
             else:
                 meta.pop(key, None)
+    offsets = np.cumsum([0] + [len(p) for p in parts[:-1]])
+    prefs = [p.preferences + np.array([o, o, 0.0]) for p, o in zip(parts, offsets) if p.preferences is not None]
     return TrajectoryDataset(parts[0].task, cat("states"), cat("lengths"), cat("returns"),
                              cat("rewards"), cat("hidden"), cat("actions"), cat("final_states"),
-                             cat("classes"), meta)
+                             cat("classes"), meta, np.concatenate(prefs) if prefs else None)

@@ -7,10 +7,18 @@ reward MSE, time profile: the part of the reward MSE that is the mean error at e
 over the bags (sum over t of n_t * mean_error_t^2 / steps; the rest is the spread of the errors
 around that mean). A model that fits the returns but adds a zero-sum function of time to every
 bag's rewards (invisible in the returns when all bags are equal in length) shows its error here.
+
+Metrics that do not depend on the returns' offset and scale (what preferences fix):
+preference accuracy: over all pairs of bags whose return labels differ, the fraction the model
+orders as the labels do (a tie in prediction counts one half); comparison accuracy: the same over
+the dataset's labelled comparisons that are not "equal"; reward correlation: Pearson's r between
+the predicted r'_t and the oracle's r_t over all real steps. Bags without a return label (NaN)
+are left out of the return MSE and the preference accuracy.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from ..datasets.trajectories import TrajectoryDataset
@@ -28,6 +36,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
     model.eval()
     bags = BagTensors(ds)
     ret_se, rew_se, steps, spread = 0.0, 0.0, 0, 0.0
+    predicted, step_pred, step_true = [], [], []
     err_by_t = torch.zeros(bags.x.shape[1], dtype=torch.float64)  # summed errors per step index
     n_by_t = torch.zeros(bags.x.shape[1], dtype=torch.float64)
     for start in range(0, len(bags), batch_size):
@@ -38,23 +47,70 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
         if ensemble:
             spread += float(pred_returns.std(0, unbiased=False).sum())
             pred_returns, pred_rewards = pred_returns.mean(0), pred_rewards.mean(0)
-        ret_se += float(((pred_returns - returns) ** 2).sum())
+        predicted.append(pred_returns.double().numpy())
+        ret_se += float(torch.nan_to_num((pred_returns - returns) ** 2).sum())
         mask = torch.arange(x.shape[1])[None, :] < lengths[:, None]
+        step_pred.append(pred_rewards[mask].double().numpy())
+        step_true.append(bags.rewards[index, : x.shape[1]][mask].double().numpy())
         true_rewards = bags.rewards[index, : x.shape[1]]
         err = (pred_rewards - true_rewards) * mask
         rew_se += float((err ** 2).sum())
         steps += int(mask.sum())
         err_by_t[: x.shape[1]] += err.double().sum(0)
         n_by_t[: x.shape[1]] += mask.double().sum(0)
-    n = max(len(bags), 1)
+    labelled = np.isfinite(ds.returns)
+    n = int(labelled.sum())
     profile = float((err_by_t ** 2 / n_by_t.clamp(min=1)).sum()) / max(steps, 1)
-    metrics = {"return_mse": ret_se / n, "reward_mse": rew_se / max(steps, 1),
+    predicted = np.concatenate(predicted) if predicted else np.zeros(0)
+    metrics = {"return_mse": ret_se / n if n else float("nan"), "reward_mse": rew_se / max(steps, 1),
                "reward_mse_time_profile": profile, "bags": len(bags)}
+    metrics["preference_accuracy"], metrics["preference_pairs"] = preference_accuracy(
+        predicted[labelled], ds.returns[labelled])
+    if ds.preferences is not None and len(ds.preferences):
+        metrics["comparison_accuracy"], metrics["comparisons"] = comparison_accuracy(predicted, ds.preferences)
+    metrics["reward_correlation"] = correlation(np.concatenate(step_pred) if step_pred else np.zeros(0),
+                                                np.concatenate(step_true) if step_true else np.zeros(0))
     if ensemble:
-        metrics["return_std"] = spread / n
+        metrics["return_std"] = spread / max(len(bags), 1)
     scale = float(model.return_scale)
     if scale != 1.0:
         metrics["return_mse_scaled"] = metrics["return_mse"] / scale ** 2
         metrics["reward_mse_scaled"] = metrics["reward_mse"] / scale ** 2
         metrics["reward_mse_time_profile_scaled"] = profile / scale ** 2
     return metrics
+
+
+def preference_accuracy(predicted: np.ndarray, labels: np.ndarray, chunk: int = 512) -> tuple[float, int]:
+    """(fraction of the pairs i < j with labels[i] != labels[j] that `predicted` orders the same
+    way, a tie counting one half; the number of such pairs). NaN accuracy without any pair.
+    predicted, labels: (n,)."""
+    predicted, labels = np.asarray(predicted, np.float64), np.asarray(labels, np.float64)
+    right, pairs = 0.0, 0
+    for start in range(0, len(labels), chunk):
+        rows = slice(start, start + chunk)
+        upper = np.arange(start, min(start + chunk, len(labels)))[:, None] < np.arange(len(labels))[None, :]
+        true = np.sign(labels[rows, None] - labels[None, :])
+        guess = np.sign(predicted[rows, None] - predicted[None, :])
+        counted = upper & (true != 0)
+        pairs += int(counted.sum())
+        right += float(np.where(guess == true, 1.0, np.where(guess == 0, 0.5, 0.0))[counted].sum())
+    return (right / pairs if pairs else float("nan")), pairs
+
+
+def comparison_accuracy(predicted: np.ndarray, preferences: np.ndarray) -> tuple[float, int]:
+    """(fraction of the labelled comparisons (a, b, p) with p != 0.5 whose better one has the
+    higher predicted return, a tie counting one half; their number)."""
+    decided = preferences[preferences[:, 2] != 0.5]
+    if len(decided) == 0:
+        return float("nan"), 0
+    diff = predicted[decided[:, 0].astype(np.int64)] - predicted[decided[:, 1].astype(np.int64)]
+    want = np.where(decided[:, 2] > 0.5, 1.0, -1.0)
+    score = np.where(np.sign(diff) == want, 1.0, np.where(diff == 0, 0.5, 0.0))
+    return float(score.mean()), int(len(decided))
+
+
+def correlation(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson's r of two equal-length arrays; NaN if either is constant or empty."""
+    if len(x) < 2 or np.std(x) == 0 or np.std(y) == 0:
+        return float("nan")
+    return float(np.corrcoef(x, y)[0, 1])

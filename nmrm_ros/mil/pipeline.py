@@ -107,7 +107,7 @@ def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: T
                             progress=progress, on_epoch=on_epoch)
     member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
     member_val = [evaluate(ens.member(m), ds.subset(va)) for m, (_, va, _) in enumerate(splits)]
-    serving = int(np.argmin([v["return_mse"] for v in member_val]))
+    serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     ensemble_test = None
     if split_mode != "per_member":

@@ -23,6 +23,19 @@ Learning-rate schedule: linear warm-up over `warmup_epochs`, then
 training labels, and of its validation labels, are swapped between trajectories
 (`nmrm_ros.datasets.label_noise`; seeded by the member's seed); the test split stays clean.
 
+`feedback` says what the labels are: `returns` (the paper: the MSE of bag returns), `preferences`
+(pairwise comparisons, `TrajectoryDataset.preferences`: a Bradley–Terry cross-entropy on the two
+trajectories' predicted returns, `preference_loss`; the CSC model's return is the sum of its
+rewards, so the loss reaches every step) or `both` (the return MSE plus `preference_weight` times
+the cross-entropy; trajectories without a return label, NaN, are left out of the MSE).
+Comparisons are split as the trajectories are: one with a trajectory of the test split is a test
+comparison (never trained on); of the others, a seeded tenth (`comparison_split`) validates. The
+validation criterion (early stopping, best weights, plateau cuts; `val_loss` in the history) is
+the validation return MSE, the validation cross-entropy, or their sum as in the training loss.
+Preferences fix the returns only up to an offset and a scale: a difference of `return_scale` in
+predicted return means P(a better) = sigmoid(1) = 0.73 (a teacher of rationality β is matched when
+return_scale = 1 / β); `both` with a few return labels calibrates both.
+
 `reward_l1` = λ > 0 adds λ · mean over bags of Σ_t |r'_t| (in units of return_scale) to each
 member's loss: a sparsity prior that chooses between decompositions the returns cannot tell
 apart. When every bag has the same length, adding any zero-sum function of time f(t) to the
@@ -51,6 +64,7 @@ from .models import MILRewardModel
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
 SCHEDULES = ("constant", "cosine", "plateau")
+FEEDBACK = ("returns", "preferences", "both")
 
 
 @dataclass
@@ -80,6 +94,8 @@ class TrainConfig:
     served_state: str = "h_tanh_c"  # what the model serves by default (recorded in its checkpoint; mil.served_state)
     plateau_patience: int = 10  # schedule plateau: epochs without a new best before the lr is cut
     plateau_factor: float = 0.5  # schedule plateau: the cut
+    feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
+    preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -113,7 +129,9 @@ class TrainConfig:
                  ("reward_l1", self.reward_l1 >= 0, ">= 0"), ("members", self.members >= 1, ">= 1"),
                  ("plateau_patience", self.plateau_patience >= 1, ">= 1"),
                  ("plateau_factor", 0 < self.plateau_factor < 1, "in (0, 1)"),
-                 ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h")]
+                 ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h"),
+                 ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
+                 ("preference_weight", self.preference_weight > 0, "> 0")]
         for name, ok, allowed in rules:
             if not ok:
                 raise ValueError(f"training setting {name} must be {allowed}, got {getattr(self, name)!r}")
@@ -123,14 +141,15 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     """One model's training. `still_improving`: it reached max_epochs with its best epoch within
-    the last `patience` epochs, i.e. it stopped at the limit, not on a plateau."""
+    the last `patience` epochs, i.e. it stopped at the limit, not on a plateau. `best_val_loss`:
+    the validation criterion at the best epoch (feedback returns: the return MSE)."""
 
     best_epoch: int
-    best_val_return_mse: float
+    best_val_loss: float
     epochs_run: int
     seconds: float
     still_improving: bool = False
-    history: list = field(default_factory=list)  # per epoch: {"epoch", "train_loss", "val_return_mse", "lr"}
+    history: list = field(default_factory=list)  # per epoch: {"epoch", "train_loss", "val_loss", "val_return_mse" and/or "val_preference_loss", "lr"}
 
 
 @dataclass
@@ -138,18 +157,17 @@ class EnsembleTrainResult:
     """Per-member lists (length K) and the run's totals."""
 
     best_epochs: list
-    best_val_return_mse: list
+    best_val_loss: list
     still_improving: list
     epochs_run: int
     seconds: float
     history: list = field(default_factory=list)  # per epoch: lists of K train losses / val MSEs
 
     def member(self, m: int) -> TrainResult:
-        return TrainResult(self.best_epochs[m], self.best_val_return_mse[m], self.epochs_run,
+        return TrainResult(self.best_epochs[m], self.best_val_loss[m], self.epochs_run,
                            self.seconds, self.still_improving[m],
-                           [{"epoch": h["epoch"], "train_loss": h["train_loss"][m],
-                             "val_return_mse": h["val_return_mse"][m], "lr": h["lr"]}
-                            for h in self.history])
+                           [dict({k: h[k][m] for k in h if isinstance(h[k], list)},
+                                 epoch=h["epoch"], lr=h["lr"]) for h in self.history])
 
 
 OWN_TASK = "your_own_task"  # the config entry of a task spec (gym:<id>, module:attr) without one of its own
@@ -283,17 +301,89 @@ def clip_member_grad_norms(ens: MILEnsemble, max_norm: float) -> torch.Tensor:
     return norms
 
 
-def member_losses(out, returns: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
-    """Each member's training loss (K,) on one mini-batch: the mean over bags of the squared return
+def return_loss(out, returns: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+    """Each member's return loss (K,) on one mini-batch: the mean over bags of the squared return
     error / return_scale, plus `reward_l1` times the mean over bags of sum_t |r'_t| / return_scale.
 
     out: the ensemble's output (returns (K, B), rewards (K, B, T), zero beyond each length);
     returns: the labels (K, B)."""
     scale = float(cfg.return_scale)
     loss = torch.mean(((out.returns - returns) / scale) ** 2, dim=-1)
-    if cfg.reward_l1 > 0:  # sparsity prior on the per-step rewards (see the module docstring)
-        loss = loss + cfg.reward_l1 * out.rewards.abs().sum(-1).mean(-1) / scale
-    return loss
+    return loss + _l1(out, cfg)
+
+
+def _l1(out, cfg: TrainConfig) -> torch.Tensor:
+    """reward_l1 times the mean over bags of sum_t |r'_t| / return_scale (K,), or 0."""
+    if cfg.reward_l1 <= 0:  # sparsity prior on the per-step rewards (see the module docstring)
+        return torch.zeros(())
+    return cfg.reward_l1 * out.rewards.abs().sum(-1).mean(-1) / float(cfg.return_scale)
+
+
+def preference_loss(returns_a: torch.Tensor, returns_b: torch.Tensor, p: torch.Tensor,
+                    scale: float = 1.0) -> torch.Tensor:
+    """The Bradley–Terry cross-entropy, mean over the last axis: P(a better) is modelled as
+    sigmoid((R_a - R_b) / scale) and scored against the label p (1: a better, 0: b better,
+    0.5: equal). returns_a, returns_b, p: (..., B) -> (...)."""
+    logits = (returns_a - returns_b) / float(scale)
+    return torch.nn.functional.binary_cross_entropy_with_logits(logits, p, reduction="none").mean(-1)
+
+
+def comparison_split(preferences: np.ndarray | None, train: np.ndarray, val: np.ndarray,
+                     seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(training rows, validation rows) of `preferences` (m, 3) for a member trained on the
+    trajectories `train` and validated on `val`: comparisons of two trajectories of train ∪ val
+    (one with a test trajectory is never used), a seeded ninth of them (a tenth of all when no
+    trajectory is held out) validating, the rest training."""
+    if preferences is None or len(preferences) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    known = np.zeros(int(max(preferences[:, :2].max() + 1, np.max(train, initial=0) + 1,
+                             np.max(val, initial=0) + 1)), dtype=bool)
+    known[np.asarray(train, dtype=np.int64)] = True
+    known[np.asarray(val, dtype=np.int64)] = True
+    a, b = preferences[:, 0].astype(np.int64), preferences[:, 1].astype(np.int64)
+    usable = np.flatnonzero(known[a] & known[b])
+    order = np.random.default_rng([int(seed), 0xC0]).permutation(usable)
+    n_val = int(round(len(order) / 9))
+    return np.sort(order[n_val:]), np.sort(order[:n_val])
+
+
+def _tiled(rows: list, generators: list, length: int) -> torch.Tensor:
+    """(K, length): member m's `rows` in a fresh random order (its generator), repeated as needed
+    to reach `length` (members with fewer items see some twice in an epoch)."""
+    out = []
+    for m, r in enumerate(rows):
+        r = torch.as_tensor(np.asarray(r), dtype=torch.int64)
+        reps = -(-length // len(r))
+        out.append(torch.cat([r[torch.randperm(len(r), generator=generators[m])] for _ in range(reps)])[:length])
+    return torch.stack(out)
+
+
+def _positions(step: int, batch: int, n: int, leading: bool) -> torch.Tensor:
+    """Positions of mini-batch `step` in an epoch's order of n items: a slice when this stream
+    sets the epoch (the last batch may be short), else full batches wrapping around."""
+    if leading:
+        return torch.arange(step * batch, min(n, (step + 1) * batch))
+    return torch.arange(step * batch, (step + 1) * batch) % n
+
+
+@torch.no_grad()
+def _val_preference_loss(ens: MILEnsemble, bags: BagTensors, prefs: torch.Tensor, rows: list,
+                         scale: float) -> np.ndarray:
+    """Each member's mean Bradley–Terry cross-entropy on its validation comparisons (K,)."""
+    ens.eval()
+    out = np.zeros(len(rows))
+    for m, r in enumerate(rows):
+        r = torch.as_tensor(np.asarray(r), dtype=torch.int64)
+        total = 0.0
+        for start in range(0, len(r), 256):
+            pick = prefs[r[start:start + 256]]
+            ab = torch.cat([pick[:, 0], pick[:, 1]]).long()
+            x, lengths, _ = bags.batch(ab)
+            returns = ens(x, lengths).returns[m]
+            half = len(pick)
+            total += float(preference_loss(returns[:half], returns[half:], pick[:, 2].float(), scale)) * half
+        out[m] = total / max(len(r), 1)
+    return out
 
 
 def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
@@ -310,7 +400,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     holds its best-validation weights. label_swap: K fractions of swapped labels, one per member
     (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
     fresh: `ens` is newly initialised, so `initialise(ens, cfg)` is applied first; False for a
-    warm start, whose trained weights are kept.
+    warm start, whose trained weights are kept. cfg.feedback chooses the labels trained on (see
+    the module docstring); ValueError if the dataset has none of that kind.
     """
     K = ens.members
     if len(splits) != K:
@@ -321,6 +412,27 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     if len({len(va) for _, va in splits}) != 1:
         raise ValueError("members' validation splits differ in size")
     seeds = list(seeds) if seeds is not None else [cfg.seed + m for m in range(K)]
+    use_returns, use_prefs = cfg.feedback in ("returns", "both"), cfg.feedback in ("preferences", "both")
+    swaps = [cfg.label_swap] * K if label_swap is None else [float(p) for p in label_swap]
+    if len(swaps) != K:
+        raise ValueError(f"{K} members need {K} label swap fractions, got {len(swaps)}")
+    if any(swaps) and cfg.feedback != "returns":
+        raise ValueError("label_swap swaps return labels: it needs feedback returns")
+    labelled = np.isfinite(ds.returns)
+    if use_returns:
+        missing = max(int((~labelled[np.asarray(tr)]).sum()) for tr, _ in splits)
+        if cfg.feedback == "returns" and missing:
+            raise ValueError(f"{missing} training trajectories have no return label (only comparisons): "
+                             f"train with feedback preferences or both")
+    if use_prefs:
+        pair_rows = [comparison_split(ds.preferences, tr, va, s) for (tr, va), s in zip(splits, seeds)]
+        if any(len(tr) == 0 for tr, _ in pair_rows):
+            raise ValueError("no comparison of two training or validation trajectories to train on: "
+                             f"feedback {cfg.feedback} needs preferences (the dataset has "
+                             f"{0 if ds.preferences is None else len(ds.preferences)})")
+        if any(len(va) == 0 for _, va in pair_rows):
+            raise ValueError(f"too few comparisons to validate on ({min(len(tr) for tr, _ in pair_rows)} "
+                             f"to train on, none left for validation): give at least 10")
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(seeds[0])
     ens.seed_dropout(seeds)  # each member's masks from its own seed: a member is its own run
@@ -334,23 +446,34 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         initialise(ens, cfg)
 
     bags = BagTensors(ds)
-    train_idx = torch.as_tensor(np.stack([np.asarray(tr) for tr, _ in splits]), dtype=torch.int64)
-    val_idx = torch.as_tensor(np.stack([np.asarray(va) for _, va in splits]), dtype=torch.int64)
+    bags.returns = torch.nan_to_num(bags.returns)  # unlabelled (NaN) bags never reach the MSE
+    generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
+    if use_returns and cfg.feedback == "both" and not labelled.all():  # only the return-labelled ones
+        labelled_splits = [(np.asarray(tr)[labelled[tr]], np.asarray(va)[labelled[va]]) for tr, va in splits]
+        if any(len(tr) == 0 or len(va) == 0 for tr, va in labelled_splits):
+            raise ValueError("feedback both needs return labels in the training and the validation split")
+        width = [max(len(x[i]) for x in labelled_splits) for i in (0, 1)]
+        train_idx = _tiled([tr for tr, _ in labelled_splits], generators, width[0])
+        val_idx = _tiled([va for _, va in labelled_splits], generators, width[1])
+    else:
+        train_idx = torch.as_tensor(np.stack([np.asarray(tr) for tr, _ in splits]), dtype=torch.int64)
+        val_idx = torch.as_tensor(np.stack([np.asarray(va) for _, va in splits]), dtype=torch.int64)
     n_train = train_idx.shape[1]
     # label noise: each member's training and validation labels swapped within its own split
     train_labels, val_labels = train_idx, val_idx
-    swaps = [cfg.label_swap] * K if label_swap is None else [float(p) for p in label_swap]
-    if len(swaps) != K:
-        raise ValueError(f"{K} members need {K} label swap fractions, got {len(swaps)}")
     if any(swaps):
         noise = [np.random.default_rng([int(s), 0x5A4B]) for s in seeds]
         train_labels = torch.stack([train_idx[m, swap_sources(n_train, swaps[m], noise[m])]
                                     for m in range(K)])
         val_labels = torch.stack([val_idx[m, swap_sources(val_idx.shape[1], swaps[m], noise[m])]
                                   for m in range(K)])
+    prefs = torch.as_tensor(ds.preferences if use_prefs else np.zeros((0, 3)), dtype=torch.float64)
+    n_pairs = max(len(tr) for tr, _ in pair_rows) if use_prefs else 0
+    scale = float(cfg.return_scale)
     optimiser = torch.optim.Adam(ens.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
-    steps_per_epoch = math.ceil(n_train / cfg.batch_size)
+    steps_returns = math.ceil(n_train / cfg.batch_size) if use_returns else 0
+    steps_prefs = math.ceil(n_pairs / cfg.batch_size)
+    steps_per_epoch = max(steps_returns, steps_prefs)
     best_mse = np.full(K, np.inf)
     best_epoch = np.zeros(K, dtype=int)
     best_state = [ens.member_state(m) for m in range(K)]
@@ -364,16 +487,28 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     epoch = 0
     for epoch in range(1, cfg.max_epochs + 1):
         ens.train()
-        perms = torch.stack([torch.randperm(n_train, generator=generators[m]) for m in range(K)])
-        order = train_idx.gather(1, perms)
-        label_order = train_labels.gather(1, perms)
+        if use_returns:
+            perms = torch.stack([torch.randperm(n_train, generator=generators[m]) for m in range(K)])
+            order = train_idx.gather(1, perms)
+            label_order = train_labels.gather(1, perms)
+        if use_prefs:
+            pair_order = _tiled([tr for tr, _ in pair_rows], generators, n_pairs)
         losses = torch.zeros(K)
-        for step, i in enumerate(range(0, n_train, cfg.batch_size)):
+        for step in range(steps_per_epoch):
             for group in optimiser.param_groups:
                 group["lr"] = cfg.lr_at(epoch - 1 + step / steps_per_epoch)
-            x, lengths, returns = bags.batch(order[:, i:i + cfg.batch_size],
-                                             label_order[:, i:i + cfg.batch_size])
-            member_loss = member_losses(ens(x, lengths), returns, cfg)
+            member_loss = torch.zeros(K)
+            if use_returns:
+                at = _positions(step, cfg.batch_size, n_train, steps_returns == steps_per_epoch)
+                x, lengths, returns = bags.batch(order[:, at], label_order[:, at])
+                member_loss = member_loss + return_loss(ens(x, lengths), returns, cfg)
+            if use_prefs:
+                pick = prefs[pair_order[:, _positions(step, cfg.batch_size, n_pairs, steps_prefs == steps_per_epoch)]]
+                half = pick.shape[1]
+                x, lengths, _ = bags.batch(torch.cat([pick[..., 0], pick[..., 1]], dim=1).long())
+                out = ens(x, lengths)
+                bt = preference_loss(out.returns[:, :half], out.returns[:, half:], pick[..., 2].float(), scale)
+                member_loss = member_loss + (cfg.preference_weight if use_returns else 1.0) * bt + _l1(out, cfg)
             optimiser.zero_grad()
             member_loss.sum().backward()
             if cfg.grad_clip > 0:
@@ -383,13 +518,23 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             else:
                 optimiser.step()
             losses += member_loss.detach()
-        val_mse = return_mse(ens, bags, index=val_idx, label_index=val_labels)
-        history.append({"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist(),
-                        "val_return_mse": val_mse.tolist(), "lr": optimiser.param_groups[0]["lr"]})
+        entry = {"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist()}
+        val_loss = np.zeros(K)
+        if use_returns:
+            val_mse = return_mse(ens, bags, index=val_idx, label_index=val_labels)
+            entry["val_return_mse"] = val_mse.tolist()
+            val_loss = val_loss + (val_mse if cfg.feedback == "returns" else val_mse / scale ** 2)
+        if use_prefs:
+            val_bt = _val_preference_loss(ens, bags, prefs, [va for _, va in pair_rows], scale)
+            entry["val_preference_loss"] = val_bt.tolist()
+            val_loss = val_loss + (cfg.preference_weight if use_returns else 1.0) * val_bt
+        entry["val_loss"] = val_loss.tolist()
+        entry["lr"] = optimiser.param_groups[0]["lr"]
+        history.append(entry)
         stop = on_epoch is not None and on_epoch(dict(history[-1], seconds=time.perf_counter() - start))
-        improved = np.flatnonzero(val_mse < best_mse)
+        improved = np.flatnonzero(val_loss < best_mse)
         for m in improved:
-            best_mse[m], best_epoch[m] = val_mse[m], epoch
+            best_mse[m], best_epoch[m] = val_loss[m], epoch
             best_state[m] = ens.member_state(int(m))
         if plateau:
             _plateau_update(factors, since_cut, improved, epoch - best_epoch, cfg)
@@ -397,9 +542,9 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         if bar is not None:
             bar.update(1)
             if K == 1:
-                bar.set_postfix(val_mse=f"{val_mse[0]:.4f}", best=f"{best_mse[0]:.4f}@{best_epoch[0]}")
+                bar.set_postfix(val_loss=f"{val_loss[0]:.4f}", best=f"{best_mse[0]:.4f}@{best_epoch[0]}")
             else:
-                bar.set_postfix(val_mse_median=f"{np.median(val_mse):.4f}",
+                bar.set_postfix(val_loss_median=f"{np.median(val_loss):.4f}",
                                 worst_member_best=f"{best_mse.max():.4f}")
         if stop or np.all(epoch - best_epoch >= cfg.patience) or (plateau and not bool(factors.any())):
             break
