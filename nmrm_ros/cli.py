@@ -82,6 +82,43 @@ ORACLE_HELP = ("your own oracle, <module>:<function> or <file.py>:<function> (ne
                "task; default: the task's own)")
 
 
+FEEDBACK_HELP = ("the labels written: returns (one per episode) | preferences (pairwise comparisons "
+                 "of a simulated teacher, no returns) | both")
+FEEDBACK_OPT = typer.Option("returns", help=FEEDBACK_HELP)
+PAIRS_OPT = typer.Option(None, min=1, help="with --feedback preferences|both: comparisons to ask "
+                                           "(default: as many as episodes)")
+BETA_OPT = typer.Option(float("inf"), help="teacher rationality: P(a better) = sigmoid(beta (R_a - R_b)); "
+                                         "inf: always the better one")
+MISTAKE_OPT = typer.Option(0.0, min=0.0, max=1.0, help="teacher: probability of flipping an answer")
+EQUAL_OPT = typer.Option(0.0, min=0.0, help="teacher: returns this close are 'equal'")
+GAMMA_OPT = typer.Option(1.0, help="teacher myopia in (0, 1]: step t weighs gamma^(len - 1 - t)")
+SKIP_OPT = typer.Option(float("-inf"), help="teacher: no answer when both returns are below this")
+
+
+def _teach_check(feedback: str, pairs, beta, mistake, equal, gamma, skip) -> None:
+    """The feedback options checked before any episode is rolled out."""
+    from .datasets.preference_teacher import SimulatedTeacher
+
+    if feedback not in ("returns", "preferences", "both"):
+        raise typer.BadParameter(f"--feedback must be returns, preferences or both, got {feedback!r}")
+    if feedback == "returns" and pairs is not None:
+        raise typer.BadParameter("--pairs needs --feedback preferences or both")
+    _bad_input(SimulatedTeacher(beta=beta, mistake=mistake, equal=equal, gamma=gamma, skip=skip).check)
+
+
+def _teach(ds, feedback: str, pairs: int | None, seed: int, **knobs):
+    """`ds` with a simulated teacher's comparisons if feedback asks for them (seeded by `seed`)."""
+    from .datasets.preference_teacher import SimulatedTeacher, with_preferences
+
+    teacher = _bad_input(SimulatedTeacher(**knobs).check)
+    if feedback == "returns":
+        return ds
+    out = _bad_input(with_preferences, ds, pairs or len(ds), teacher, seed)
+    typer.echo(f"  teacher {teacher.to_dict()}: {len(out.preferences)} of {pairs or len(ds)} "
+               f"comparisons answered")
+    return out
+
+
 def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool, pool_size: int | None,
               bins: int, policy: Path | None = None):
     """The screened dataset the dataset commands write (see datasets.generate_screened)."""
@@ -116,11 +153,17 @@ def dataset_screen(
     bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
     policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
                                            "episodes are screened (default: uniform random)"),
+    feedback: str = FEEDBACK_OPT, pairs: int = PAIRS_OPT, beta: float = BETA_OPT,
+    mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
+    skip: float = SKIP_OPT,
 ) -> None:
     """Generate a screened dataset (paper App. D.2; your own task: balanced return bins) and
-    print draws and time."""
+    print draws and time; --feedback preferences adds a simulated teacher's comparisons (the
+    return labels stay in the .npz as the ground truth; `nmrm train --feedback` chooses)."""
+    _teach_check(feedback, pairs, beta, mistake, equal, gamma, skip)
     ds = _screened(task, n, seed, oracle, key_fourth_class, pool_size, bins, policy)
     typer.echo(_dataset_summary(ds))
+    ds = _teach(ds, feedback, pairs, seed, beta=beta, mistake=mistake, equal=equal, gamma=gamma, skip=skip)
     if out is not None:
         typer.echo(f"wrote {ds.save(out)}")
 
@@ -138,18 +181,26 @@ def dataset_generate(
     bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
     policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
                                            "episodes are screened (default: uniform random)"),
+    feedback: str = FEEDBACK_OPT, pairs: int = PAIRS_OPT, beta: float = BETA_OPT,
+    mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
+    skip: float = SKIP_OPT,
 ) -> None:
     """Screened episodes written as a bag with the live graph's topics (observations, actions,
-    oracle ground truth, oracle labels)."""
+    oracle ground truth, oracle labels); --feedback preferences: a simulated teacher's
+    TrajectoryPreference messages instead of return labels (both: both)."""
     import time
 
     from .bags import write_dataset_bag
 
+    _teach_check(feedback, pairs, beta, mistake, equal, gamma, skip)
     ds = _screened(task, episodes, seed, oracle, key_fourth_class, pool_size, bins, policy)
     typer.echo(_dataset_summary(ds))
+    ds = _teach(ds, feedback, pairs, seed, beta=beta, mistake=mistake, equal=equal, gamma=gamma, skip=skip)
+    perfect = beta == float("inf") and mistake == 0 and equal == 0 and gamma == 1
     t0 = time.perf_counter()
     try:
-        write_dataset_bag(ds, out)
+        write_dataset_bag(ds, out, returns=feedback != "preferences",
+                          preference_labeller=f"{'oracle' if perfect else 'teacher'}/{ds.task}")
     except FileExistsError as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(f"wrote {out} ({time.perf_counter() - t0:.1f} s)")
@@ -445,8 +496,11 @@ def train(
                                      "validation labels between trajectories (paper Sec. 5.2)"),
     reward_l1: float = typer.Option(None, min=0.0, help="override the weight of the L1 sparsity prior on "
                                     "per-step rewards (config/mil_training.yaml; 0: off)"),
+    feedback: str = typer.Option(None, help="what to learn from: returns (the MSE of episode returns) | "
+                                 "preferences (a Bradley-Terry loss on pairwise comparisons) | both; default "
+                                 "returns"),
 ) -> None:
-    """Train a MIL reward model or an ensemble (early stopping on validation return MSE) and
+    """Train a MIL reward model or an ensemble (early stopping on the validation loss) and
     evaluate it on the test split."""
     from .mil import ARCHITECTURES, load_train_config
     from .mil.pipeline import SPLIT_MODES, train_and_evaluate
@@ -456,7 +510,7 @@ def train(
     if split_mode not in SPLIT_MODES:
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
-                    reward_l1=reward_l1)
+                    reward_l1=reward_l1, feedback=feedback)
     if task:  # the settings are checked before any data is loaded or generated
         _bad_input(load_train_config, task, config, **settings)
     if bag:
@@ -470,18 +524,18 @@ def train(
     if len(ds) < 100:
         typer.echo(f"warning: only {len(ds)} trajectories; the validation and test sets have about "
                    f"{len(ds) // 10} each, so the figures below are noise", err=True)
-    typer.echo(f"training {arch} on {ds.task}: {len(ds)} trajectories ({source}), "
+    compared = 0 if ds.preferences is None else len(ds.preferences)
+    typer.echo(f"training {arch} on {ds.task} from {cfg.feedback}: {len(ds)} trajectories"
+               + (f", {compared} comparisons" if compared else "") + f" ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
     ensemble = cfg.members if ensemble is None else ensemble
     if ensemble > 1:
-        _train_ensemble(ds, arch, cfg, ensemble, split_seed, split_mode, out, source)
+        _bad_input(_train_ensemble, ds, arch, cfg, ensemble, split_seed, split_mode, out, source)
         return
-    run = train_and_evaluate(ds, arch, cfg, split_seed=split_seed, out=out, data_source=source)
-    m = run.test_metrics
+    run = _bad_input(train_and_evaluate, ds, arch, cfg, split_seed=split_seed, out=out, data_source=source)
     typer.echo(f"best epoch {run.train.best_epoch}/{run.train.epochs_run} in {run.train.seconds:.1f} s; "
-               f"test return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f} "
-               f"({m['bags']} bags)")
+               f"test {_metrics_line(run.test_metrics)}")
     if run.train.still_improving:
         typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
@@ -496,12 +550,10 @@ def _train_ensemble(ds, arch, cfg, members, split_seed, split_mode, out, source)
     for m, test in enumerate(run.member_test):
         flag = ", still improving at the limit" if run.train.still_improving[m] else ""
         typer.echo(f"  member {m} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
-                   f"{run.train.best_epochs[m]}; test return MSE {test['return_mse']:.4f}, "
-                   f"reward MSE {test['reward_mse']:.5f}{flag}")
+                   f"{run.train.best_epochs[m]}; test {_metrics_line(test)}{flag}")
     if run.ensemble_test is not None:
         m = run.ensemble_test
-        typer.echo(f"ensemble mean: test return MSE {m['return_mse']:.4f}, reward MSE "
-                   f"{m['reward_mse']:.5f}, mean return std {m['return_std']:.4f} ({m['bags']} bags)")
+        typer.echo(f"ensemble mean: test {_metrics_line(m)}, mean return std {m['return_std']:.4f}")
     typer.echo(f"serving member (hidden state): {int(run.ensemble.serving_member)}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
 
@@ -550,9 +602,11 @@ def evaluate(
         ds = ds.subset(split_indices(len(ds), meta.get("split_seed", 0))[names.index(split)])
     m = evaluate_model(model, ds)
     what = f"{meta['ensemble']['members']}-member ensemble of " if meta.get("ensemble") else ""
-    typer.echo(f"{what}{model.config.architecture} on {ds.task} ({split}, {m['bags']} bags): "
-               f"return MSE {m['return_mse']:.4f}, reward MSE {m['reward_mse']:.5f} "
-               f"(of it the mean error per step index: {m['reward_mse_time_profile']:.5f})")
+    typer.echo(f"{what}{model.config.architecture} on {ds.task} ({split}): {_metrics_line(m)} "
+               f"(of the reward MSE, the mean error per step index: {m['reward_mse_time_profile']:.5f})")
+    if meta.get("train_config", {}).get("feedback") == "preferences":
+        typer.echo("note: trained on preferences, which fix returns only up to an offset and a scale: "
+                   "judge it by the preference accuracy and the reward correlation, not the MSEs")
 
 
 @app.command()
@@ -712,13 +766,31 @@ def _bad_input(fn, *args, **kwargs):
         raise typer.BadParameter(str(exc)) from None
 
 
+def _metrics_line(m: dict) -> str:
+    """Test metrics in one line: the two MSEs (where return labels exist), then those that do not
+    depend on the returns' offset and scale."""
+    parts = []
+    if m["return_mse"] == m["return_mse"]:  # not NaN: some bags have return labels
+        parts.append(f"return MSE {m['return_mse']:.4f}")
+    parts.append(f"reward MSE {m['reward_mse']:.5f}")
+    if m.get("preference_pairs"):
+        parts.append(f"preference accuracy {m['preference_accuracy']:.3f} ({m['preference_pairs']} pairs)")
+    if m.get("comparisons"):
+        parts.append(f"comparison accuracy {m['comparison_accuracy']:.3f} ({m['comparisons']} comparisons)")
+    if m.get("reward_correlation") == m.get("reward_correlation"):
+        parts.append(f"reward correlation {m['reward_correlation']:.3f}")
+    return ", ".join(parts) + f" ({m['bags']} bags)"
+
+
 def _dataset_summary(ds) -> str:
     import numpy as np
 
     meta = ds.meta
+    returns = ds.returns[np.isfinite(ds.returns)]
     lines = [f"{ds.task}: {len(ds)} trajectories, state size {ds.state_size}, "
-             f"return mean {ds.returns.mean():.3f} std {ds.returns.std():.3f} "
-             f"min {ds.returns.min():.3f} max {ds.returns.max():.3f}"]
+             + (f"return mean {returns.mean():.3f} std {returns.std():.3f} "
+                f"min {returns.min():.3f} max {returns.max():.3f}" if len(returns) else "no return labels")
+             + (f", {len(ds.preferences)} comparisons" if ds.preferences is not None else "")]
     if meta.get("generator") == "return_screening":
         lines.append(f"  {meta['pool']} episodes rolled out ({meta['policy']} policy, seed {meta['seed']}) in "
                      f"{meta['seconds']:.2f} s; at most {meta['cap_per_bin']} per return bin of {meta['bins']}; "

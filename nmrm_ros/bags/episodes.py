@@ -2,17 +2,21 @@
 
 `write_dataset_bag` writes a `TrajectoryDataset` (e.g. a screened dataset) as the live graph
 would record it: per episode, EnvObservation steps 0..L (the last one truncated/terminated),
-AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from `oracle/<task>`.
+AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from `oracle/<task>`;
+then the dataset's comparisons (`TrajectoryDataset.preferences`) as TrajectoryPreference messages.
 
 `load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations,
 labels from TrajectoryReturn messages (in the same bag, or in labels-only bags given beside it,
-joined by (source, task, episode)), oracle ground truth from OracleStep if present. An episode's
+joined by (source, task, episode)), comparisons from TrajectoryPreference messages joined the same
+way (an episode that is only compared has return NaN), oracle ground truth from OracleStep if
+present. An episode's
 **source** is the namespace of its topics: one recorder can record several graphs
 (`/robot1/nmrm/...`, `/robot2/nmrm/...`) and their equal episode numbers do not collide; the
 dataset's `meta["sources"]` and `meta["episodes"]` say where each trajectory came from. Episodes that cannot be
 used are skipped and counted by reason, never used silently:
   missing_steps, conflicting_duplicates, no_final_observation, wrong_state_size, no_label,
-  label_length_mismatch.
+  label_length_mismatch; comparisons of an episode not used, or of another length than it has,
+  are counted the same way (comparison_of_unused_episode, comparison_length_mismatch).
 Identical repeated observations (env_sim re-publishing after an action timeout) are not errors.
 """
 
@@ -35,6 +39,7 @@ T_OBS = "nmrm_msgs/msg/EnvObservation"
 T_ACT = "nmrm_msgs/msg/AgentAction"
 T_RET = "nmrm_msgs/msg/TrajectoryReturn"
 T_ORC = "nmrm_msgs/msg/OracleStep"
+T_PREF = "nmrm_msgs/msg/TrajectoryPreference"
 TOPIC = {t: topic for topic, t in TOPIC_TYPES.items()}
 #: log time of the first message of generated bags (2025-01-01T00:00:00Z), and the step period
 BASE_TIME_NS = 1_735_689_600 * 10**9
@@ -47,8 +52,11 @@ def _header(t_ns: int, frame: str = "") -> dict:
 
 def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | None = None,
                       start_ns: int = BASE_TIME_NS, first_episode: int = 0,
-                      include_oracle: bool = True) -> Path:
-    """Write every trajectory of `ds` as an episode (numbered from `first_episode`)."""
+                      include_oracle: bool = True, returns: bool = True,
+                      preference_labeller: str | None = None) -> Path:
+    """Write every trajectory of `ds` as an episode (numbered from `first_episode`), with its
+    return label from `labeller` (default oracle/<task>; returns=False: none), then each of its
+    comparisons from `preference_labeller` (default: `labeller`)."""
     if ds.final_states is None:
         raise ValueError("the dataset has no final observations (toy bags are not episodes)")
     labeller = labeller or f"oracle/{ds.task}"
@@ -59,7 +67,8 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
     partial = path.with_name(path.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     try:
-        _write_episodes(ds, partial, labeller, start_ns, first_episode, include_oracle, path.name)
+        _write_episodes(ds, partial, labeller, start_ns, first_episode, include_oracle, path.name, returns,
+                        preference_labeller or labeller)
         if path.exists():
             path.rmdir()
         partial.rename(path)
@@ -69,7 +78,8 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
     return path
 
 
-def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle, name) -> None:
+def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle, name, returns,
+                    preference_labeller) -> None:
     t = start_ns
     with BagWriter(path, file_name=f"{name}_0.mcap") as bag:
         for i in range(len(ds)):
@@ -93,10 +103,24 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                             "hidden": [float(x) for x in ds.hidden[i, step]],
                             "reward": float(ds.rewards[i, step])}, t + 2)
                 t += STEP_NS
-            bag.write_dict(TOPIC[T_RET], T_RET, {
-                "header": _header(t), "task": ds.task, "episode": e, "length": length,
-                "return_value": float(ds.returns[i]), "labeller": labeller}, t)
+            if returns:
+                bag.write_dict(TOPIC[T_RET], T_RET, {
+                    "header": _header(t), "task": ds.task, "episode": e, "length": length,
+                    "return_value": float(ds.returns[i]), "labeller": labeller}, t)
             t += STEP_NS
+        for a, b, p in ([] if ds.preferences is None else ds.preferences):
+            bag.write_dict(TOPIC[T_PREF], T_PREF, preference_message(
+                ds.task, first_episode + int(a), int(ds.lengths[int(a)]), first_episode + int(b),
+                int(ds.lengths[int(b)]), float(p), preference_labeller, t), t)
+            t += STEP_NS
+
+
+def preference_message(task: str, episode_a: int, length_a: int, episode_b: int, length_b: int,
+                       p: float, labeller: str, t_ns: int, source_a: str = "", source_b: str = "") -> dict:
+    """A TrajectoryPreference as a dict; p = P(a better): 1 -> A_BETTER, 0 -> B_BETTER, 0.5 -> EQUAL."""
+    return {"header": _header(t_ns), "task": task, "source_a": source_a, "episode_a": int(episode_a),
+            "length_a": int(length_a), "source_b": source_b, "episode_b": int(episode_b),
+            "length_b": int(length_b), "preference": int(round(2 * p - 1)), "labeller": labeller}
 
 
 @dataclass
@@ -108,12 +132,16 @@ class BagDatasetReport:
     skipped: Counter = field(default_factory=Counter)
     labellers: Counter = field(default_factory=Counter)
     with_oracle: int = 0
+    comparisons_seen: int = 0
+    comparisons_used: int = 0
 
     def __str__(self) -> str:
         skipped = ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items())) or "none"
+        compared = (f"; comparisons: {self.comparisons_seen} in the bags, {self.comparisons_used} used"
+                    if self.comparisons_seen else "")
         return (f"{self.episodes_seen} episodes in the bags, {self.episodes_used} used; skipped: "
                 f"{skipped}; labellers: {dict(self.labellers)}; with oracle ground truth: "
-                f"{self.with_oracle}")
+                f"{self.with_oracle}{compared}")
 
 
 def _source(topic: str) -> str:
@@ -125,20 +153,24 @@ def _source(topic: str) -> str:
 
 
 def _read(path: Path):
-    """Observations and labels keyed by (source, task, episode), oracle steps by (source, episode);
-    the source is the namespace of the topic ('' for /nmrm/...)."""
-    obs, labels, oracle = defaultdict(list), defaultdict(list), defaultdict(dict)
+    """Observations and labels keyed by (source, task, episode), oracle steps by (source, episode),
+    comparisons as (key a, key b, message); the source is the namespace of the topic ('' for
+    /nmrm/...), or a comparison's own source_a / source_b where given."""
+    obs, labels, oracle, prefs = defaultdict(list), defaultdict(list), defaultdict(dict), []
     for topic, type_name, _, m in iter_decoded(path):
-        if type_name not in (T_OBS, T_RET, T_ORC):
+        if type_name not in (T_OBS, T_RET, T_ORC, T_PREF):
             continue
         source = _source(topic)
-        if type_name == T_OBS:
+        if type_name == T_PREF:
+            prefs.append(((m.source_a or source, m.task, int(m.episode_a)),
+                          (m.source_b or source, m.task, int(m.episode_b)), m))
+        elif type_name == T_OBS:
             obs[(source, m.task, int(m.episode))].append(m)
         elif type_name == T_RET:
             labels[(source, m.task, int(m.episode))].append(m)
         else:
             oracle[(source, int(m.episode))][int(m.step)] = m
-    return obs, labels, oracle
+    return obs, labels, oracle, prefs
 
 
 def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None = None
@@ -147,11 +179,13 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
 
     A bag with observations is a recording; a bag with labels only is a labels bag whose labels
     join the recordings by (task, episode) (an ambiguous join is an error). With several labellers
-    on one episode, `labeller` chooses; without it that is an error naming them.
+    on one episode, `labeller` chooses; without it that is an error naming them. Comparisons of
+    every labeller are kept (each is one answer), only those of `labeller` if it is given.
     """
-    recordings, extra_labels = [], defaultdict(list)
+    recordings, extra_labels, comparisons = [], defaultdict(list), []
     for path in paths:
-        obs, labels, oracle = _read(Path(path))
+        obs, labels, oracle, prefs = _read(Path(path))
+        comparisons.extend(c for c in prefs if labeller is None or c[2].labeller == labeller)
         if obs:
             recordings.append((Path(path), obs, labels, oracle))
         else:
@@ -172,23 +206,49 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
                            f"({', '.join(map(str, owners))}); give them separately")
 
     report = BagDatasetReport()
-    rows = []
+    comparisons = [c for c in comparisons if c[2].task == task]
+    compared = {key for a, b, _ in comparisons for key in (a, b)}
+    rows, index = [], {}
     for _, obs, labels, oracle in recordings:
         for key in sorted(k for k in obs if k[1] == task):
             report.episodes_seen += 1
             row, reason = _episode(obs[key], labels.get(key, []) + extra_labels.get(key, []),
-                                   oracle.get((key[0], key[2]), {}), info.state_size, labeller, report)
+                                   oracle.get((key[0], key[2]), {}), info.state_size, labeller, report,
+                                   compared=key in compared)
             if reason:
                 report.skipped[reason] += 1
             else:
+                index[key] = len(rows)
                 rows.append(row + (key[0],))
     report.episodes_used = len(rows)
     if not rows:
         raise BagError(f"no usable episode of task {task!r}: {report}")
-    return _stack(task, rows, info.state_size, report), report
+    ds = _stack(task, rows, info.state_size, report)
+    if comparisons:
+        ds.preferences = _comparisons(comparisons, index, ds, report)
+        ds.meta["report"] = str(report)
+    return ds, report
 
 
-def _episode(messages, labels, oracle, state_size, labeller, report):
+def _comparisons(comparisons: list, index: dict, ds: TrajectoryDataset, report: BagDatasetReport) -> np.ndarray:
+    """(m, 3) rows (a, b, p) of the comparisons whose both episodes are in the dataset with the
+    lengths the labeller saw; the others counted in the report."""
+    out = []
+    report.comparisons_seen = len(comparisons)
+    for a, b, m in comparisons:
+        if a not in index or b not in index:
+            report.skipped["comparison_of_unused_episode"] += 1
+        elif (int(m.length_a), int(m.length_b)) != (int(ds.lengths[index[a]]), int(ds.lengths[index[b]])):
+            report.skipped["comparison_length_mismatch"] += 1
+        elif int(m.preference) not in (-1, 0, 1):
+            report.skipped["comparison_unknown_preference"] += 1
+        else:
+            out.append((index[a], index[b], (int(m.preference) + 1) / 2))
+    report.comparisons_used = len(out)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+
+def _episode(messages, labels, oracle, state_size, labeller, report, compared=False):
     by_step: dict = {}
     for m in messages:
         state = np.asarray(m.state, dtype=np.float32)
@@ -206,37 +266,46 @@ def _episode(messages, labels, oracle, state_size, labeller, report):
     if not any(by_step[length][1]) or any(any(by_step[t][1]) for t in range(length)) or length == 0:
         return None, "no_final_observation"
     names = sorted({m.labeller for m in labels})
-    if not labels:
-        return None, "no_label"
-    if labeller is not None:
-        chosen = [m for m in labels if m.labeller == labeller]
-        if not chosen:
+    chosen = labels if labeller is None else [m for m in labels if m.labeller == labeller]
+    if not chosen:
+        if not compared:
             return None, "no_label"
-    elif len(names) > 1:
+        return _unlabelled(by_step, length, oracle, messages, report), None  # only compared: return NaN
+    if labeller is None and len(names) > 1:
         raise BagError(f"episode {messages[0].episode} has labels from several labellers {names}; "
                        f"choose one (--labeller)")
-    else:
-        chosen = labels
     label = chosen[-1]
     if int(label.length) != length:
         return None, "label_length_mismatch"
     report.labellers[label.labeller] += 1
+    states, rewards, hidden = _steps(by_step, length, oracle, report)
+    stamp = label.header.stamp
+    return (states, by_step[length][0], float(label.return_value), rewards, hidden,
+            int(messages[0].episode), str(label.labeller), int(stamp.sec) * 10**9 + int(stamp.nanosec)), None
+
+
+def _unlabelled(by_step, length, oracle, messages, report) -> tuple:
+    """The row of an episode that is compared but has no return label: return NaN, no labeller."""
+    states, rewards, hidden = _steps(by_step, length, oracle, report)
+    return (states, by_step[length][0], float("nan"), rewards, hidden, int(messages[0].episode), "", 0)
+
+
+def _steps(by_step, length, oracle, report) -> tuple:
+    """(states (L, d), oracle rewards (L,) or None, oracle hidden (L, k) or None)."""
     states = np.stack([by_step[t][0] for t in range(length)])
     have_oracle = all(t in oracle for t in range(length))
     report.with_oracle += int(have_oracle)
     rewards = np.array([oracle[t].reward for t in range(length)], np.float64) if have_oracle else None
     hidden = (np.array([list(oracle[t].hidden) for t in range(length)], np.float64)
               if have_oracle else None)
-    stamp = label.header.stamp
-    return (states, by_step[length][0], float(label.return_value), rewards, hidden,
-            int(messages[0].episode), str(label.labeller), int(stamp.sec) * 10**9 + int(stamp.nanosec)), None
+    return states, rewards, hidden
 
 
 def label_record(task: str, source: str, episode: int, length: int, value: float, labeller: str,
                  stamp_ns: int) -> dict:
     """One label as provenance and export record it: who gave which return to which episode, when."""
     return {"task": task, "source": source, "episode": int(episode), "length": int(length),
-            "return": float(value), "labeller": labeller, "stamp_ns": int(stamp_ns)}
+            "return": None if value != value else float(value), "labeller": labeller, "stamp_ns": int(stamp_ns)}
 
 
 def _stack(task, rows, state_size, report) -> TrajectoryDataset:

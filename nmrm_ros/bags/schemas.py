@@ -15,7 +15,8 @@ from pathlib import Path
 
 from ..ros.ament_paths import share_dir as _share_dir
 
-NMRM_TYPES = ("EnvObservation", "AgentAction", "RewardStep", "TrajectoryReturn", "OracleStep")
+NMRM_TYPES = ("EnvObservation", "AgentAction", "RewardStep", "TrajectoryReturn", "OracleStep",
+              "TrajectoryPreference")
 #: standard ROS 2 types our graph publishes too: their .msg text (without the Header's definition)
 STANDARD_TYPES = {"sensor_msgs/msg/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n"}
 
@@ -26,6 +27,7 @@ TOPIC_TYPES = {
     "/nmrm/reward_step": "nmrm_msgs/msg/RewardStep",
     "/nmrm/trajectory_return": "nmrm_msgs/msg/TrajectoryReturn",
     "/nmrm/oracle_step": "nmrm_msgs/msg/OracleStep",
+    "/nmrm/trajectory_preference": "nmrm_msgs/msg/TrajectoryPreference",
     "/nmrm/frame": "sensor_msgs/msg/CompressedImage",  # env_sim render:=true (nmrm_ros.tasks.frames)
 }
 

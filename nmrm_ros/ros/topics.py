@@ -13,9 +13,10 @@ ACTION = "nmrm/action"
 REWARD_STEP = "nmrm/reward_step"
 TRAJECTORY_RETURN = "nmrm/trajectory_return"
 ORACLE_STEP = "nmrm/oracle_step"
+TRAJECTORY_PREFERENCE = "nmrm/trajectory_preference"  # labellers' pairwise comparisons of episodes
 FRAME = "nmrm/frame"  # sensor_msgs/CompressedImage: env_sim's rendered frames (render:=true)
 
-ALL_TOPICS = (OBSERVATION, ACTION, REWARD_STEP, TRAJECTORY_RETURN, ORACLE_STEP, FRAME)
+ALL_TOPICS = (OBSERVATION, ACTION, REWARD_STEP, TRAJECTORY_RETURN, ORACLE_STEP, TRAJECTORY_PREFERENCE, FRAME)
 
 STEP_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_ALL,
