@@ -13,9 +13,10 @@ import rclpy
 from nmrm_ros.ros.ament_paths import node_command
 from nmrm_ros.ros.node_main import _executor
 
-from nmrm_msgs.msg import AgentAction, EnvObservation, OracleStep, RewardStep, TrajectoryReturn
+from nmrm_msgs.msg import (AgentAction, EnvObservation, OracleStep, RewardStep, TrajectoryPreference,
+                            TrajectoryReturn)
 from nmrm_ros.ros.topics import (ACTION, OBSERVATION, ORACLE_STEP, REWARD_STEP, STEP_QOS,
-                                 TRAJECTORY_RETURN)
+                                 TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN)
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = REPO / "launch_scripts" / "graph.launch.yaml"
@@ -41,7 +42,8 @@ def launch(*arguments: str) -> subprocess.Popen:
 
 _TOPICS = {"observation": (EnvObservation, OBSERVATION), "action": (AgentAction, ACTION),
            "reward_step": (RewardStep, REWARD_STEP), "label": (TrajectoryReturn, TRAJECTORY_RETURN),
-           "oracle_step": (OracleStep, ORACLE_STEP)}
+           "oracle_step": (OracleStep, ORACLE_STEP),
+           "preference": (TrajectoryPreference, TRAJECTORY_PREFERENCE)}
 
 
 class Capture:

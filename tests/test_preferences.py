@@ -145,3 +145,68 @@ def test_feedback_errors_are_one_line():
                            progress=False)
     with pytest.raises(ValueError, match="feedback must be"):
         load_train_config("toggle_switch", feedback="stars")
+
+
+def test_bag_round_trip_of_comparisons_without_returns(tmp_path):
+    """A preference-only bag: every compared episode comes back with return NaN and its
+    comparisons, joined by episode number; episodes nobody compared are skipped as unlabelled."""
+    from nmrm_ros.bags import write_dataset_bag
+    from nmrm_ros.bags.episodes import load_bag_dataset
+    from nmrm_ros.bags.reader import iter_decoded
+    from nmrm_ros.datasets import generate_screened
+
+    ds = with_preferences(generate_screened("timer", 40, seed=0), 50, SimulatedTeacher(), seed=0)
+    write_dataset_bag(ds, tmp_path / "bag", returns=False, preference_labeller="oracle/timer")
+    types = {t for _, t, _, _ in iter_decoded(tmp_path / "bag")}
+    assert "nmrm_msgs/msg/TrajectoryReturn" not in types and "nmrm_msgs/msg/TrajectoryPreference" in types
+    back, report = load_bag_dataset([tmp_path / "bag"])
+    assert report.comparisons_seen == report.comparisons_used == 50
+    assert np.isnan(back.returns).all()
+    compared = set(ds.preferences[:, :2].astype(int).ravel())
+    assert sorted(back.meta["episodes"]) == sorted(compared)
+    episode = np.asarray(back.meta["episodes"])
+    got = {(episode[int(a)], episode[int(b)], p) for a, b, p in back.preferences}
+    assert got == {(int(a), int(b), p) for a, b, p in ds.preferences}
+
+
+def test_labeller_oracle_publishes_comparisons_over_real_topics(ros_domain):
+    """A real labeller_oracle with feedback both: a return label per episode and one comparison per
+    episode after the first, each ordered as the returns are (a perfect teacher)."""
+    import signal
+
+    from rclpy.duration import Duration
+
+    from graph_helpers import Capture, finish, start
+    from nmrm_msgs.msg import EnvObservation
+    from nmrm_ros.oracles import make_oracle
+    from nmrm_ros.ros.topics import OBSERVATION
+
+    capture = Capture()
+    try:
+        labeller = start("labeller_oracle", task="key", feedback="both", pair_pool=5, noise_seed=2)
+        pub = capture.publisher(EnvObservation, OBSERVATION)
+        capture.wait_for_publishers({"label": 1, "preference": 1})
+        assert capture.spin_until(lambda: pub.get_subscription_count() >= 1, 30)
+        rng = np.random.default_rng(0)
+        oracle = make_oracle("key")
+        truth = []
+        for e in range(12):
+            states = np.clip(np.cumsum(rng.normal(0, 0.08, (101, 2)), axis=0) + [0.5, 0.2], 0, 1)
+            states[30:30 + 3 * e] = [0.5, 0.8]
+            truth.append(oracle.label(states[None, :100]).returns[0])
+            for t, s in enumerate(states.astype(np.float32)):
+                pub.publish(EnvObservation(task="key", episode=e, step=t, state=s.tolist(),
+                                           truncated=(t == 100)))
+        assert pub.wait_for_all_acked(Duration(seconds=30))
+        assert capture.spin_until(lambda: len(capture.msgs["preference"]) >= 11, 30)
+        labeller.send_signal(signal.SIGINT)
+        code, out = finish(labeller)
+    finally:
+        capture.close()
+    assert len(capture.msgs["label"]) == 12
+    prefs = capture.msgs["preference"]
+    assert len(prefs) == 11 and all(m.labeller == "oracle/key" and m.length_a == m.length_b == 100 for m in prefs)
+    for m in prefs:
+        want = np.sign(truth[m.episode_a] - truth[m.episode_b])
+        assert m.preference == (0 if want == 0 else want) or (want == 0 and m.preference == -1), m
+    assert code == 0 and "11 comparison(s)" in out, out

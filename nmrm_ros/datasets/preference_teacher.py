@@ -45,6 +45,26 @@ class SimulatedTeacher:
     def to_dict(self) -> dict:
         return {k: (str(v) if math.isinf(v) else v) for k, v in asdict(self).items()}
 
+    def judge(self, rewards: np.ndarray) -> float:
+        """One trajectory's return as this teacher weighs it: rewards (L,) -> sum_t gamma^(L-1-t) r_t."""
+        rewards = np.asarray(rewards, dtype=np.float64)
+        return float((rewards * self.gamma ** np.arange(len(rewards))[::-1]).sum())
+
+    def decide(self, ra: np.ndarray, rb: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """(p (m,), answered (m,) bool) for judged returns ra, rb (m,): p = 1 a better, 0 b
+        better, 0.5 equal; not answered: both below `skip`."""
+        ra, rb = np.atleast_1d(np.asarray(ra, np.float64)), np.atleast_1d(np.asarray(rb, np.float64))
+        diff = ra - rb
+        if math.isinf(self.beta):
+            p = (diff > 0).astype(np.float64)
+        else:
+            chance = 1.0 / (1.0 + np.exp(-np.clip(self.beta * diff, -500, 500)))
+            p = (rng.random(len(diff)) < chance).astype(np.float64)
+        flip = rng.random(len(diff)) < self.mistake
+        p = np.where(flip, 1.0 - p, p)
+        p = np.where(np.abs(diff) <= self.equal, 0.5, p)
+        return p, ~((ra < self.skip) & (rb < self.skip))
+
     def judged_returns(self, ds: TrajectoryDataset) -> np.ndarray:
         """(n,) each trajectory's return as this teacher weighs it (oracle rewards, myopia gamma)."""
         steps = np.arange(ds.rewards.shape[1])[None, :]
@@ -58,17 +78,7 @@ class SimulatedTeacher:
         rng = np.random.default_rng([int(seed), 0xBEEF])
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         r = self.judged_returns(ds)
-        ra, rb = r[pairs[:, 0]], r[pairs[:, 1]]
-        diff = ra - rb
-        if math.isinf(self.beta):
-            p = (diff > 0).astype(np.float64)
-        else:
-            chance = 1.0 / (1.0 + np.exp(-np.clip(self.beta * diff, -500, 500)))
-            p = (rng.random(len(pairs)) < chance).astype(np.float64)
-        flip = rng.random(len(pairs)) < self.mistake
-        p = np.where(flip, 1.0 - p, p)
-        p = np.where(np.abs(diff) <= self.equal, 0.5, p)
-        answered = ~((ra < self.skip) & (rb < self.skip))
+        p, answered = self.decide(r[pairs[:, 0]], r[pairs[:, 1]], rng)
         return np.column_stack([pairs[answered], p[answered]]).astype(np.float64)
 
 
