@@ -388,7 +388,11 @@ def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, 
             assert len(page.get_attribute("#arena polyline.path", "points").split()) == 4  # xy: steps 0..3
             frame = page.locator("#frame")
             assert frame.is_visible() and frame.get_attribute("data-step") == "2"  # frames at 0, 2, 4, ...
-            page.wait_for_function("document.getElementById('frame').complete")
+            # not page.wait_for_function: when its first check fails it polls by evaluating the
+            # string in the page, which the page's CSP refuses (a flaky failure on a loaded machine)
+            deadline = time.monotonic() + 10
+            while not page.evaluate("document.getElementById('frame').complete") and time.monotonic() < deadline:
+                time.sleep(0.05)
             assert page.evaluate("document.getElementById('frame').naturalWidth") == 240
             status, body, headers = node.request(f"/api/episode/{queue[0]['episode']}")
             assert body["frames"] == sorted(set(range(0, first + 1, 2)) | {first}), body["frames"]
@@ -404,3 +408,75 @@ def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, 
         out = node.stop()
     assert "labelled episode" in out, out
     assert len(lengths) > 1, lengths  # CartPole's random episodes (seed 0) vary in length
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
+                                             "apt when run as root)")
+def test_a_person_compares_two_episodes_in_the_browser(ros_domain, tmp_path):
+    """feedback:=preferences: the page draws two episodes side by side (an SVG path each) and
+    plays them; a click on "left", the → key and "can't tell" give two TrajectoryPreference
+    messages on the topic and in the labels bag (can't tell: none), and a restarted page does not
+    offer the compared pairs again."""
+    import re
+
+    from playwright.sync_api import expect, sync_playwright
+
+    labels_dir = tmp_path / "labels"
+    capture = Capture()
+    node = WebNode(labels_dir, feedback="preferences")
+    try:
+        capture.wait_for_publishers({"preference": 1})
+        play_episodes(3)
+        deadline = time.monotonic() + 60
+        while len(node.request("/api/pairs")[1]["pairs"]) < 3:
+            assert time.monotonic() < deadline, "".join(node.lines)
+            time.sleep(0.2)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 1400, "height": 800})
+            errors: list = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(node.url)
+            page.wait_for_selector("#view-a svg.arena polyline")
+            assert page.is_hidden("#viewer") and page.is_visible("#compare")
+            for side in ("a", "b"):
+                assert len(page.get_attribute(f"#view-{side} svg.arena polyline", "points").split()) >= 1
+                assert page.locator(f"#view-{side} svg.arena rect.zone-key").count() == 1
+            page.click("#pair-play")
+            expect(page.locator("#pair-step")).to_have_text(re.compile(r"step [1-9]\d* / 100"), timeout=5000)
+            first = page.text_content("#pair-title")
+            page.click("#left")
+            page.wait_for_selector("#comparisons tr")
+            expect(page.locator("#pair-title")).not_to_have_text(first)
+            page.keyboard.press("ArrowRight")
+            page.wait_for_selector("#comparisons tr:nth-child(2)")
+            third = page.text_content("#pair-title")
+            page.keyboard.press("s")
+            expect(page.locator("#pair-title")).not_to_have_text(third)
+            ARTEFACTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(ARTEFACTS / "comparison_page.png"))
+            rows = [page.text_content(f"#comparisons tr:nth-child({i}) td:nth-child(3)") for i in (1, 2)]
+            assert sorted(rows) == ["left", "right"]
+            assert errors == []
+            browser.close()
+        assert capture.spin_until(lambda: len(capture.msgs["preference"]) == 2, 20)
+        got = sorted((m.episode_a, m.episode_b, m.preference, m.labeller) for m in capture.msgs["preference"])
+        assert {g[2] for g in got} == {1, -1} and all(g[3] == "person/alice" and g[0] != g[1] for g in got)
+    finally:
+        node.stop()
+        capture.close()
+    session = next(p for p in labels_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    stored = sorted((m.episode_a, m.episode_b, m.preference, m.labeller) for _, _, _, m in iter_decoded(session))
+    assert stored == got
+    again = WebNode(labels_dir, feedback="preferences")
+    try:
+        deadline = time.monotonic() + 30
+        while not again.request("/api/pairs")[1]["pairs"]:
+            assert time.monotonic() < deadline, "".join(again.lines)
+            time.sleep(0.2)
+        offered = {(p["a"], p["b"]) for p in again.request("/api/pairs")[1]["pairs"]}
+        compared = {(min(a, b), max(a, b)) for a, b, _, _ in got}
+        assert offered and not offered & compared, (offered, compared)
+        assert again.request("/api/comparisons")[1]["comparisons"] == []
+    finally:
+        again.stop()

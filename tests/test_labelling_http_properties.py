@@ -37,7 +37,8 @@ def server():
         queue.add(e, np.zeros((101, 2), np.float32))
     labelled = []
     srv = WebServer(make_app(queue, lambda label, ep: labelled.append((label.episode, label.value)),
-                             {"labeller": "person/test"}, token=TOKEN), port=0)
+                             {"labeller": "person/test"}, token=TOKEN, feedback="both",
+                             on_compare=lambda c, a, b: labelled.append((c.a, c.b, c.p))), port=0)
     srv.start()
     yield srv, queue, labelled
     srv.stop()
@@ -57,6 +58,20 @@ def request(srv, path: str, body: bytes | None = None, content_type: str = "appl
         status, raw, kind = exc.code, exc.read(), exc.headers.get("Content-Type", "")
     answer = json.loads(raw) if kind.startswith("application/json") else None
     return status, answer, kind
+
+
+COMPARE_LIKE = st.fixed_dictionaries(
+    {}, optional={"a": st.sampled_from([*EPISODES, 99, -1, "3", True, None, 3.0]) | JSON,
+                  "b": st.sampled_from([*EPISODES, 99, "4", False]) | JSON,
+                  "preference": st.sampled_from(["a", "b", "equal", "A", "left", "", 1, None]) | JSON})
+
+
+def valid_comparison(body) -> bool:
+    if not isinstance(body, dict):
+        return False
+    a, b = body.get("a"), body.get("b")
+    return (type(a) is int and type(b) is int and a in EPISODES and b in EPISODES and a != b
+            and body.get("preference") in ("a", "b", "equal"))
 
 
 def valid_label(body) -> bool:
@@ -88,6 +103,22 @@ def test_any_json_body_gets_a_clean_answer_and_labels_only_when_valid(server, bo
 
 
 @SETTINGS
+@given(body=st.one_of(COMPARE_LIKE, JSON), path=st.sampled_from(["/api/compare", "/api/cant_tell"]))
+def test_any_json_body_gets_a_clean_answer_and_compares_only_when_valid(server, body, path):
+    srv, _, labelled = server
+    before = len(labelled)
+    status, answer, kind = request(srv, path, json.dumps(body, allow_nan=True).encode())
+    assert status < 500 and kind.startswith("application/json"), (body, status)
+    if path == "/api/compare":
+        assert (status == 200) == valid_comparison(body), (body, status, answer)
+        assert len(labelled) == before + (status == 200)
+    else:
+        assert len(labelled) == before
+    if status != 200:
+        assert isinstance(answer.get("error"), str) and "\n" not in answer["error"], answer
+
+
+@SETTINGS
 @given(raw=st.binary(max_size=300), kind=st.sampled_from(["application/json", "text/plain", "",
                                                           "application/x-www-form-urlencoded"]))
 def test_any_bytes_of_any_content_type_label_nothing(server, raw, kind):
@@ -105,7 +136,8 @@ def test_any_bytes_of_any_content_type_label_nothing(server, raw, kind):
 
 @SETTINGS
 @given(segments=st.lists(st.one_of(st.sampled_from(["episode", "frame", "3", "4", "99", "0",
-                                                    "label", "queue", "info", "labels", ".."]),
+                                                    "label", "queue", "info", "labels", "pairs",
+                                                    "comparisons", "compare", ".."]),
                                    st.from_regex(r"[0-9]{1,25}", fullmatch=True),
                                    st.text(st.characters(codec="ascii", categories=("L", "N")), max_size=6)),
                          max_size=5))

@@ -5,6 +5,10 @@ predicted returns for it: where models trained on bootstrap resamples of the lab
 label tells the most (query by committee, as in Christiano et al. 2017 and BPref's disagreement
 sampling). The queue is then ordered by that spread, largest first. A single model has no spread:
 the queue stays oldest first (and `ordering` says so).
+
+Pairs to compare are chosen the same way (imitation's active selection): a pair's score is the
+spread over the members of their P(a better than b) = sigmoid((R_a - R_b) / return_scale)
+(`pair_disagreement`), largest first.
 """
 
 from __future__ import annotations
@@ -16,10 +20,18 @@ import torch
 
 OLDEST_FIRST = "oldest first"
 DISAGREEMENT = "largest disagreement first (std of the ensemble members' predicted returns)"
+PAIR_DISAGREEMENT = "largest disagreement first (std of the ensemble members' P(a better than b))"
+
+
+def pair_disagreement(returns_a: np.ndarray, returns_b: np.ndarray, scale: float = 1.0) -> float:
+    """The std over members of P(a better) = sigmoid((R_a - R_b) / scale); returns_*: (K,)."""
+    p = 1.0 / (1.0 + np.exp(-np.clip((np.asarray(returns_a) - np.asarray(returns_b)) / scale, -50, 50)))
+    return float(np.std(p))
 
 
 class DisagreementScorer:
-    """`score(states (L, d) instances) -> (spread, mean)` of the members' predicted returns."""
+    """`score(states (L, d) instances) -> (spread, mean, members' returns (K,))` of the members'
+    predicted returns."""
 
     def __init__(self, checkpoint: str, task: str) -> None:
         from ..mil import load_checkpoint
@@ -29,6 +41,7 @@ class DisagreementScorer:
         self.model = model.eval()
         self.source = str(checkpoint)
         self.members = model.members if isinstance(model, MILEnsemble) else 1
+        self.return_scale = float(model.return_scale)
         self.lock = threading.Lock()
 
     @property
@@ -40,6 +53,7 @@ class DisagreementScorer:
         x = torch.as_tensor(np.asarray(states, np.float32))[None]
         with self.lock:
             returns = self.model(x, torch.tensor([x.shape[1]])).returns.reshape(-1)
+        members = returns.double().numpy()
         if self.members == 1:
-            return 0.0, float(returns[0])
-        return float(returns.std(unbiased=False)), float(returns.mean())
+            return 0.0, float(returns[0]), members
+        return float(returns.std(unbiased=False)), float(returns.mean()), members

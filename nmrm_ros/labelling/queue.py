@@ -10,6 +10,14 @@ anyone labelled it, or while someone else has it open, it is not offered to the 
 task's range and records it (a person's second label of an episode is a correction: the latest one
 counts, for training too). Gold episodes (`gold`: episodes whose return is known, to check the
 people) are asked of everyone whatever the assignment.
+
+Comparisons (feedback preferences): `pending_pairs(person)` offers pairs of the queued episodes
+to compare, among the `pair_window` oldest episodes that still need comparisons (an episode needs
+`comparisons_per_episode` answered ones: by anyone with split assignment, by this person with
+overlap); with an ensemble scorer the pairs its members disagree on most come first
+(`active.pair_disagreement`), else the oldest pairs. `compare()` records an answer (a, b, p) — a
+person's second answer on a pair is a correction — and `cant_tell()` records that a person will
+not be asked that pair again ("can't tell" is no comparison).
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ class Episode:
     finished_at: float          # wall time (s since the epoch) of the final observation
     spread: float | None = None     # the scorer's: std of the members' predicted returns
     predicted: float | None = None  # the scorer's: mean predicted return
+    members: np.ndarray | None = None  # the scorer's: each member's predicted return (K,)
 
     @property
     def why(self) -> str:
@@ -70,6 +79,17 @@ class Label:
     person: str = ""            # who gave it
 
 
+@dataclass
+class Comparison:
+    a: int                      # the episode shown on the left
+    b: int                      # ... on the right
+    p: float                    # P(a better) as answered: 1 a, 0 b, 0.5 equal
+    at: float                   # wall time, s since the epoch
+    corrections: int = 0        # answers on this pair by this person before this one
+    person: str = ""
+
+
+PREFERENCES = {"a": 1.0, "b": 0.0, "equal": 0.5}
 ASSIGNMENTS = ("split", "overlap")
 
 
@@ -83,7 +103,11 @@ class LabelQueue:
     episodes: dict = field(default_factory=dict)    # episode id -> Episode
     labels: dict = field(default_factory=dict)      # (person, episode id) -> latest Label
     done_before: dict = field(default_factory=dict) # person -> episodes labelled in earlier sessions
-    scorer: object = None       # .score(states (L, d)) -> (spread, mean) and .ordering; None: oldest first
+    scorer: object = None       # .score(states (L, d)) -> (spread, mean, members) and .ordering; None: oldest first
+    comparisons_per_episode: int = 3  # answered comparisons an episode needs (see the module docstring)
+    pair_window: int = 30       # pairs are offered among this many oldest episodes that need comparisons
+    comparisons: dict = field(default_factory=dict)  # (person, min(a, b), max(a, b)) -> latest Comparison
+    compared_before: set = field(default_factory=set)  # (person, min(a, b), max(a, b)) answered in earlier sessions
 
     def __post_init__(self) -> None:
         self.low, self.high = return_range(self.task)
@@ -94,6 +118,7 @@ class LabelQueue:
         self.skipped: set = set()   # (person, episode)
         self.gold: set = set()      # episodes asked of everyone (their returns are known)
         self.taken: dict = {}       # episode -> (person, until: wall time)
+        self.cant: set = set()      # (person, min(a, b), max(a, b)): "can't tell" answers
 
     @property
     def ordering(self) -> str:
@@ -101,9 +126,9 @@ class LabelQueue:
 
     def _score(self, ep: Episode) -> None:
         if self.scorer is None or self.scorer.ordering == "oldest first":
-            ep.spread = ep.predicted = None
+            ep.spread = ep.predicted = ep.members = None
         else:
-            ep.spread, ep.predicted = self.scorer.score(ep.states[:-1])
+            ep.spread, ep.predicted, ep.members = self.scorer.score(ep.states[:-1])
 
     def set_scorer(self, scorer) -> None:
         """Order the queue with `scorer` from now on (None: oldest first); rescores every episode."""
@@ -214,3 +239,89 @@ class LabelQueue:
         with self.lock:
             return sorted((r for r in self.labels.values() if person is None or r.person == person),
                           key=lambda r: r.at, reverse=True)
+
+    # -- comparisons ---------------------------------------------------------------------------
+    def _answered(self) -> set:
+        """(person, min, max) of every comparison answered, this session or before (lock held)."""
+        return set(self.comparisons) | self.compared_before
+
+    def _compared_counts(self, person: str, answered: set) -> dict:
+        """episode -> answered comparisons of it that count for `person` (lock held)."""
+        counts: dict = {}
+        for who, a, b in answered:
+            if self.assignment == "split" or who == person:
+                counts[a] = counts.get(a, 0) + 1
+                counts[b] = counts.get(b, 0) + 1
+        return counts
+
+    def pending_pairs(self, person: str = "", limit: int = 20) -> list:
+        """`person`'s pairs to compare: (a, b, disagreement or None), best first (see the module
+        docstring); a is the older episode."""
+        from .active import pair_disagreement
+
+        scale = float(getattr(self.scorer, "return_scale", 1.0))
+        with self.lock:
+            answered = self._answered()
+            counts = self._compared_counts(person, answered)
+            need = sorted((e for e in self.episodes.values()
+                           if counts.get(e.episode, 0) < self.comparisons_per_episode),
+                          key=lambda e: e.finished_at)[: self.pair_window]
+            pairs = []
+            for i, x in enumerate(need):
+                for y in need[i + 1:]:
+                    key = (min(x.episode, y.episode), max(x.episode, y.episode))
+                    if (person, *key) in self.cant or (person, *key) in answered:
+                        continue
+                    if self.assignment == "split" and any((p, *key) in answered for p in self.people):
+                        continue
+                    score = None
+                    if x.members is not None and y.members is not None and len(x.members) > 1:
+                        score = pair_disagreement(x.members, y.members, scale)
+                    pairs.append((x.episode, y.episode, score, max(x.finished_at, y.finished_at)))
+        pairs.sort(key=lambda q: (-(q[2] or 0.0), q[3]))
+        return [(a, b, score) for a, b, score, _ in pairs[:limit]]
+
+    @property
+    def pair_ordering(self) -> str:
+        from .active import PAIR_DISAGREEMENT
+
+        members = getattr(self.scorer, "members", 1) if self.scorer is not None else 1
+        return PAIR_DISAGREEMENT if members > 1 else "oldest pairs first"
+
+    def compare(self, a: int, b: int, preference: str, person: str = "") -> tuple:
+        """Record `person`'s answer on episodes a (left) and b (right): preference 'a', 'b' or
+        'equal'; returns (Comparison, Episode a, Episode b)."""
+        self._check_person(person)
+        if not isinstance(preference, str) or preference not in PREFERENCES:
+            raise LabelError(f"'preference' must be one of {', '.join(PREFERENCES)}, got {preference!r}")
+        if a == b:
+            raise LabelError("an episode cannot be compared with itself")
+        ep_a, ep_b = self.get(a), self.get(b)
+        key = (person, min(a, b), max(a, b))
+        with self.lock:
+            before = self.comparisons.get(key)
+            record = Comparison(a, b, PREFERENCES[preference], time.time(),
+                                0 if before is None else before.corrections + 1, person)
+            self.comparisons[key] = record
+            self.cant.discard(key)
+        return record, ep_a, ep_b
+
+    def cant_tell(self, a: int, b: int, person: str = "") -> None:
+        """`person` cannot tell a and b apart: that pair is not offered to them again."""
+        self._check_person(person)
+        self.get(a), self.get(b)
+        with self.lock:
+            self.cant.add((person, min(a, b), max(a, b)))
+
+    def needs_comparisons(self, episode: int) -> bool:
+        """Someone is still to compare `episode` (split: fewer than comparisons_per_episode answers)."""
+        with self.lock:
+            answered = self._answered()
+            return any(self._compared_counts(p, answered).get(episode, 0) < self.comparisons_per_episode
+                       for p in self.people)
+
+    def comparison_history(self, person: str | None = None) -> list:
+        """The comparisons answered in this session (by `person`; None: by everyone), newest first."""
+        with self.lock:
+            return sorted((c for c in self.comparisons.values() if person is None or c.person == person),
+                          key=lambda c: c.at, reverse=True)

@@ -12,6 +12,11 @@ Routes (JSON unless said; every one behind the access token when there is one):
   POST /api/skip              {"episode": n}
   GET  /api/labels            this session's labels of the person asking, newest first
   GET  /api/team              who labelled how much, the team's agreement (and gold errors)
+  GET  /api/pairs             pairs of episodes to compare, best first, and why
+  POST /api/compare           {"a": n, "b": m, "preference": "a" | "b" | "equal"}: a comparison
+                              (again: a correction)
+  POST /api/cant_tell         {"a": n, "b": m}: not asked again, nothing published
+  GET  /api/comparisons       this session's comparisons of the person asking, newest first
 
 A page serves one person or a team: `tokens` maps each person's access token to their name, and
 every request is answered for the person whose token it carries (their queue, their labels, their
@@ -41,7 +46,7 @@ from typing import Callable
 
 from aiohttp import web
 
-from .queue import LabelError, LabelQueue
+from .queue import PREFERENCES, LabelError, LabelQueue
 
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; connect-src 'self'; img-src 'self'; "
        "frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
@@ -84,10 +89,13 @@ PERSON = web.RequestKey("person", str)  # who the request is from (by its token)
 
 def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | None = None,
              max_body: int = 4096, frames=None, allowed_hosts: set | None = None,
-             tokens: dict | None = None, team: Callable | None = None) -> web.Application:
+             tokens: dict | None = None, team: Callable | None = None,
+             on_compare: Callable | None = None, feedback: str = "returns") -> web.Application:
     """The page's application. `on_label(label, episode)` is called (in the server's thread) for
     every accepted label (`label.person` gave it), before the answer is sent: it publishes and
-    stores it. `tokens`: access token -> person (a team; or `token` for the queue's one person;
+    stores it; `on_compare(comparison, episode_a, episode_b)` likewise for every comparison.
+    `feedback`: what the page asks for (returns | preferences | both; the comparison routes
+    answer 404 with returns). `tokens`: access token -> person (a team; or `token` for the queue's one person;
     neither: no token, the queue's first person); `info`: extra fields of /api/info;
     `team()`: extra fields of /api/team (e.g. gold errors); `frames`: a FrameStore of rendered
     frames; `allowed_hosts`: the `Host` values ("name:port", lower case) this server answers to
@@ -165,7 +173,8 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         return web.json_response({"task": queue.task, "range": [queue.low, queue.high],
                                   "arena": _arena(queue.task), "ordering": queue.ordering, **info,
                                   "person": person, "labeller": f"person/{person}",
-                                  "team": list(queue.people), "assignment": queue.assignment})
+                                  "team": list(queue.people), "assignment": queue.assignment,
+                                  "feedback": feedback, "pair_ordering": queue.pair_ordering})
 
     async def api_queue(request: web.Request) -> web.Response:
         return web.json_response({"episodes": [
@@ -191,7 +200,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
             return _error(404, f"no frame of episode {episode} step {step}")
         return web.Response(body=frame[1], content_type=f"image/{frame[0]}")
 
-    async def _body(request: web.Request) -> dict:
+    async def _body(request: web.Request, fields: tuple = ("episode",)) -> dict:
         if request.content_length is not None and request.content_length > max_body:
             raise web.HTTPRequestEntityTooLarge(max_size=max_body, actual_size=request.content_length)
         raw = await request.read()  # also refused past client_max_size
@@ -201,9 +210,10 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
             raise LabelError("the body is not JSON") from None
         if not isinstance(body, dict):
             raise LabelError("the body must be a JSON object")
-        episode = body.get("episode")
-        if isinstance(episode, bool) or not isinstance(episode, int):
-            raise LabelError(f"'episode' must be an integer, got {episode!r}")
+        for name in fields:
+            value = body.get(name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise LabelError(f"'{name}' must be an integer, got {value!r}")
         return body
 
     async def api_label(request: web.Request) -> web.Response:
@@ -243,13 +253,57 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         return web.json_response({"people": people, "assignment": queue.assignment,
                                   "agreement": report["agreement"], **(team() if team else {})})
 
+    def _asks_comparisons() -> None:
+        if feedback == "returns":
+            raise web.HTTPNotFound(reason="this page asks for returns only (labeller_web feedback:=preferences or both compares)")
+
+    async def api_pairs(request: web.Request) -> web.Response:
+        _asks_comparisons()
+        pairs = queue.pending_pairs(request[PERSON])
+        return web.json_response({"ordering": queue.pair_ordering, "pairs": [
+            {"a": a, "b": b, "disagreement": score,
+             "why": "" if score is None else f"models disagree: P(left better) spread {score:.2f}"}
+            for a, b, score in pairs]})
+
+    async def api_compare(request: web.Request) -> web.Response:
+        _asks_comparisons()
+        try:
+            body = await _body(request, ("a", "b"))
+            if "preference" not in body:
+                raise LabelError("missing 'preference'")
+            record, ep_a, ep_b = queue.compare(body["a"], body["b"], body["preference"], request[PERSON])
+        except LabelError as exc:
+            return _error(400, str(exc))
+        if on_compare is not None:
+            on_compare(record, ep_a, ep_b)
+        return web.json_response({"a": record.a, "b": record.b, "preference": body["preference"],
+                                  "corrections": record.corrections})
+
+    async def api_cant_tell(request: web.Request) -> web.Response:
+        _asks_comparisons()
+        try:
+            body = await _body(request, ("a", "b"))
+            queue.cant_tell(body["a"], body["b"], request[PERSON])
+        except LabelError as exc:
+            return _error(400, str(exc))
+        return web.json_response({"a": body["a"], "b": body["b"], "cant_tell": True})
+
+    async def api_comparisons(request: web.Request) -> web.Response:
+        _asks_comparisons()
+        names = {v: k for k, v in PREFERENCES.items()}
+        return web.json_response({"comparisons": [
+            {"a": c.a, "b": c.b, "preference": names[c.p], "at": c.at, "corrections": c.corrections}
+            for c in queue.comparison_history(request[PERSON])]})
+
     app = web.Application(middlewares=[guard], client_max_size=max_body)
     app.add_routes([web.get("/", static), web.get("/static/{name}", static),
                     web.get("/api/info", api_info), web.get("/api/queue", api_queue),
                     web.get(r"/api/episode/{episode:\d+}", api_episode),
                     web.get(r"/api/episode/{episode:\d+}/frame/{step:\d+}", api_frame),
                     web.post("/api/label", api_label), web.post("/api/skip", api_skip),
-                    web.get("/api/labels", api_labels), web.get("/api/team", api_team)])
+                    web.get("/api/labels", api_labels), web.get("/api/team", api_team),
+                    web.get("/api/pairs", api_pairs), web.post("/api/compare", api_compare),
+                    web.post("/api/cant_tell", api_cant_tell), web.get("/api/comparisons", api_comparisons)])
     return app
 
 

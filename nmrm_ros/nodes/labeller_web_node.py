@@ -32,6 +32,14 @@ N-th episode is a gold episode, asked of everyone, whose true return the oracle 
 `oracle`) knows: each person's error on them is shown, and the true returns are written to a
 `gold_oracle_*` bag in `labels_dir` (not published), so `nmrm labels report` can check people later.
 
+Comparisons: with `feedback` preferences (or both), the page shows two episodes side by side,
+played together, and asks which is better: left / right / equal / can't tell (keys ←, →, =, s).
+Pairs come from the oldest episodes that still need comparisons (`comparisons_per_episode`), or,
+with an ensemble `checkpoint`, where its members disagree most on P(left better). Each answer is
+published at once as TrajectoryPreference on `nmrm/trajectory_preference` (labeller
+person/<name>) and written to the person's labels bag with their returns; "can't tell" publishes
+nothing. Pairs answered in earlier sessions are not asked again.
+
 Safety (as Jupyter's): binds 127.0.0.1 unless `host` says otherwise; every request needs the
 access token (`token`, or one generated and printed in the URL at start; `require_token:=false`
 drops it on 127.0.0.1 only), the Host header must name this server, and a request that changes
@@ -48,13 +56,13 @@ from pathlib import Path
 import numpy as np
 from rclpy.node import Node
 
-from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
+from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from sensor_msgs.msg import CompressedImage
 
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, live_parameter,
                              require_task, run_node)
-from ..ros.topics import FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+from ..ros.topics import FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -75,6 +83,8 @@ PARAMETERS = {
     "max_episodes": Param(1000, "finished episodes kept for labelling (oldest dropped)", 1),
     "checkpoint": Param("", "MIL ensemble checkpoint: ask first where its members disagree ('' = oldest first)"),
     "exit_with_upstream": Param(False, "exit when the observation topic's publishers are gone"),
+    "feedback": Param("returns", "what the page asks: returns | preferences (pairwise comparisons) | both"),
+    "comparisons_per_episode": Param(3, "feedback preferences|both: answered comparisons each episode gets", 1),
     "frames_mb": Param(200, "rendered frames (nmrm/frame) kept for the page, in MB (oldest episodes' dropped)", 1),
 }
 
@@ -99,11 +109,15 @@ class LabellerWebNode(Node):
             raise NodeError(f"people must be different names, got {people}")
         if p["assignment"] not in ("split", "overlap"):
             raise NodeError(f"assignment must be split or overlap, got {p['assignment']!r}")
+        if p["feedback"] not in ("returns", "preferences", "both"):
+            raise NodeError(f"feedback must be returns, preferences or both, got {p['feedback']!r}")
+        self.feedback = p["feedback"]
         self.people = people
         self.labeller = f"person/{people[0]}"
         tokens = self._tokens(p, people, bool(team))
         self.queue = LabelQueue(self.task, max_episodes=int(p["max_episodes"]), people=tuple(people),
-                                assignment=p["assignment"], take_s=float(p["take_s"]))
+                                assignment=p["assignment"], take_s=float(p["take_s"]),
+                                comparisons_per_episode=int(p["comparisons_per_episode"]))
         self.gold_every = int(p["gold_every"])
         self.gold_returns: dict = {}
         self.finished = 0
@@ -120,9 +134,13 @@ class LabellerWebNode(Node):
                 raise NodeError(error)
         live_parameter(self, PARAMETERS, "checkpoint", lambda value: self._use_checkpoint(str(value)))
         topic = self.resolve_topic_name(TRAJECTORY_RETURN)
-        self.stores = {person: LabelStore(p["labels_dir"], f"person/{person}", topic=topic) for person in people}
+        pref_topic = self.resolve_topic_name(TRAJECTORY_PREFERENCE)
+        self.stores = {person: LabelStore(p["labels_dir"], f"person/{person}", topic=topic,
+                                          preference_topic=pref_topic) for person in people}
         self.store = self.stores[people[0]]
         self.queue.done_before = {person: s.labelled_episodes(self.task) for person, s in self.stores.items()}
+        self.queue.compared_before = {(person, *pair) for person, s in self.stores.items()
+                                      for pair in s.compared_pairs(self.task)}
         for session in {r for s in self.stores.values() for r in s.repaired}:
             self.get_logger().warning(f"repaired the labels bag of an interrupted session: {session}")
         self.gold_store = LabelStore(p["labels_dir"], "gold/oracle", topic=topic) if self.gold_every else None
@@ -131,12 +149,14 @@ class LabellerWebNode(Node):
         self.follower = EpisodeFollower()
         self.states: list = []
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
+        self.pref_pub = self.create_publisher(TrajectoryPreference, TRAJECTORY_PREFERENCE, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
         self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
         allowed_hosts: set | None = None if p["host"] in ("0.0.0.0", "::") else set()
         app = make_app(self.queue, self.on_label, {}, tokens=tokens or None, frames=self.frames,
-                       allowed_hosts=allowed_hosts, team=self._gold_report)
+                       allowed_hosts=allowed_hosts, team=self._gold_report, on_compare=self.on_compare,
+                       feedback=self.feedback)
         self.server = WebServer(app, p["host"], int(p["port"]))
         try:
             self.server.start()
@@ -293,11 +313,29 @@ class LabellerWebNode(Node):
         who = f"{labeller} " if len(self.people) > 1 else ""
         self.get_logger().info(f"{who}{what} episode {episode.episode}: return {label.value:g}")
 
+    def on_compare(self, comparison, ep_a, ep_b) -> None:
+        """A person's comparison: written to their labels bag, then published."""
+        stamp = time.time_ns()
+        message = self.stores[comparison.person].append_comparison(
+            self.task, ep_a.episode, ep_a.length, ep_b.episode, ep_b.length, comparison.p, stamp)
+        out = TrajectoryPreference(task=self.task, episode_a=ep_a.episode, length_a=ep_a.length,
+                                   episode_b=ep_b.episode, length_b=ep_b.length,
+                                   preference=message["preference"], labeller=message["labeller"])
+        out.header.stamp.sec, out.header.stamp.nanosec = stamp // 10**9, stamp % 10**9
+        self.pref_pub.publish(out)
+        for ep in (ep_a, ep_b):
+            if self.feedback == "preferences" and not self.queue.needs_comparisons(ep.episode):
+                self.waiting.remove(ep.episode)
+        what = "corrected" if comparison.corrections else "compared"
+        verdict = {1.0: "left better", 0.0: "right better", 0.5: "equal"}[comparison.p]
+        self.get_logger().info(f"{message['labeller']} {what} episodes {ep_a.episode} and {ep_b.episode}: {verdict}")
+
     def close(self) -> None:
         self.server.stop()
         for store in self.stores.values():
             store.close()
-            self.get_logger().info(f"{store.written} label(s) this session, in {store.path}")
+            compared = f", {store.compared} comparison(s)" if store.compared else ""
+            self.get_logger().info(f"{store.written} label(s){compared} this session, in {store.path}")
         if self.gold_store is not None:
             self.gold_store.close()
 

@@ -1,5 +1,6 @@
 // The labelling page: the queue, an episode's animated path over the arena (or, for your own
-// task, its state dimensions over time), the label form and the labels given. Every value from the server is written with textContent or as an SVG
+// task, its state dimensions over time), the label form and the labels given; with comparisons,
+// two episodes side by side and the answers given. Every value from the server is written with textContent or as an SVG
 // attribute, never parsed as HTML.
 "use strict";
 const token = new URLSearchParams(location.search).get("token") || "";
@@ -23,25 +24,24 @@ function api(path, body) {
 function el(tag, text) { const e = document.createElement(tag); if (text !== undefined) e.textContent = text; return e; }
 function showError(e) { document.getElementById("error").textContent = e ? String(e.message || e) : ""; }
 
-function bounds() {  // the arena's, or (your own task's x/y) the episode's own, with a margin
+function bounds(ep) {  // the arena's, or (your own task's x/y) the episode's own, with a margin
   if (info.arena.bounds) return info.arena.bounds;
-  if (!current) return [0, 1, 0, 1];
+  if (!ep) return [0, 1, 0, 1];
   const [ix, iy] = info.arena.xy;
-  const xs = current.states.map((s) => s[ix]), ys = current.states.map((s) => s[iy]);
+  const xs = ep.states.map((s) => s[ix]), ys = ep.states.map((s) => s[iy]);
   const pad = (lo, hi) => { const m = (hi - lo) * 0.05 || 0.5; return [lo - m, hi + m]; };
   return [...pad(Math.min(...xs), Math.max(...xs)), ...pad(Math.min(...ys), Math.max(...ys))];
 }
 
-function toView(x, y) {  // arena coordinates -> SVG (y up)
-  const [x0, x1, y0, y1] = bounds();
+function toView(ep, x, y) {  // arena coordinates -> SVG (y up)
+  const [x0, x1, y0, y1] = bounds(ep);
   return [100 * (x - x0) / (x1 - x0), 100 - 100 * (y - y0) / (y1 - y0)];
 }
 
-function drawArena() {
-  const svg = document.getElementById("arena");
+function drawArena(svg, ep) {
   svg.replaceChildren();
   for (const [x0, x1, y0, y1, kind] of info.arena.zones) {
-    const [ax, ay] = toView(x0, y1), [bx, by] = toView(x1, y0);
+    const [ax, ay] = toView(ep, x0, y1), [bx, by] = toView(ep, x1, y0);
     const r = document.createElementNS(SVG, "rect");
     r.setAttribute("x", ax); r.setAttribute("y", ay);
     r.setAttribute("width", bx - ax); r.setAttribute("height", by - ay);
@@ -55,13 +55,12 @@ function drawArena() {
 // A task without an arena (your own task): each state dimension over time, one band per
 // dimension (scaled to its range in this episode), with a cursor at the step shown.
 const MAX_DIMS = 12;
-function drawStates() {
-  const svg = document.getElementById("dims");
+function drawStates(svg, ep, at) {
   svg.replaceChildren();
-  if (!current) return;
-  const dims = Math.min(current.states[0].length, MAX_DIMS), band = 100 / dims, steps = current.length;
+  if (!ep) return;
+  const dims = Math.min(ep.states[0].length, MAX_DIMS), band = 100 / dims, steps = ep.length;
   for (let d = 0; d < dims; d++) {
-    const values = current.states.map((s) => s[d]);
+    const values = ep.states.map((s) => s[d]);
     const lo = Math.min(...values), hi = Math.max(...values), span = hi - lo || 1;
     const y = (v) => d * band + band * 0.9 - band * 0.8 * (v - lo) / span;
     const line = document.createElementNS(SVG, "polyline");
@@ -72,51 +71,55 @@ function drawStates() {
     line.appendChild(t);
     const name = document.createElementNS(SVG, "text");
     name.setAttribute("x", 0.5); name.setAttribute("y", d * band + 3); name.setAttribute("class", "dim-name");
-    name.textContent = `s[${d}] = ${values[frame].toPrecision(3)}`;
+    name.textContent = `s[${d}] = ${values[Math.min(at, steps)].toPrecision(3)}`;
     svg.append(line, name);
   }
   const cursor = document.createElementNS(SVG, "line");
-  const x = 100 * frame / Math.max(steps, 1);
+  const x = 100 * Math.min(at, steps) / Math.max(steps, 1);
   cursor.setAttribute("class", "cursor");
   cursor.setAttribute("x1", x); cursor.setAttribute("x2", x); cursor.setAttribute("y1", 0); cursor.setAttribute("y2", 100);
   svg.appendChild(cursor);
 }
 
 // An episode with rendered frames plays them as a video: the frame of the latest step <= the one shown.
-function drawFrame() {
-  const img = document.getElementById("frame");
-  const steps = current ? current.frames : [];
+function drawFrame(img, ep, at) {
+  const steps = ep ? ep.frames : [];
   img.hidden = !steps.length;
   if (!steps.length) return;
   let shown = steps[0];
-  for (const s of steps) { if (s <= frame) shown = s; else break; }
-  const src = `/api/episode/${current.episode}/frame/${shown}` + (token ? `?token=${encodeURIComponent(token)}` : "");
+  for (const s of steps) { if (s <= at) shown = s; else break; }
+  const src = `/api/episode/${ep.episode}/frame/${shown}` + (token ? `?token=${encodeURIComponent(token)}` : "");
   if (img.getAttribute("src") !== src) img.setAttribute("src", src);
   img.dataset.step = shown;
 }
 
-function drawEpisode() {
-  if (info.arena) drawPath();
-  if (info.task.includes(":")) drawStates();  // your own task: its state dimensions over time
-  drawFrame();
-  if (!current) return;
-  document.getElementById("scrub").value = frame;
-  document.getElementById("step").textContent = `step ${frame} / ${current.length}`;
-}
-
-function drawPath() {
-  const svg = drawArena();
-  if (!current) return;
+function drawPath(svg, ep, at) {
+  drawArena(svg, ep);
+  if (!ep) return;
   const [ix, iy] = info.arena.xy;
-  const shown = current.states.slice(0, frame + 1);
+  const shown = ep.states.slice(0, Math.min(at, ep.length) + 1);
   const path = document.createElementNS(SVG, "polyline");
   path.setAttribute("class", "path");
-  path.setAttribute("points", shown.map((s) => toView(s[ix], s[iy]).join(",")).join(" "));
+  path.setAttribute("points", shown.map((s) => toView(ep, s[ix], s[iy]).join(",")).join(" "));
   svg.appendChild(path);
-  const [cx, cy] = toView(shown[shown.length - 1][ix], shown[shown.length - 1][iy]);
+  const [cx, cy] = toView(ep, shown[shown.length - 1][ix], shown[shown.length - 1][iy]);
   const dot = document.createElementNS(SVG, "circle");
   dot.setAttribute("class", "agent"); dot.setAttribute("cx", cx); dot.setAttribute("cy", cy); dot.setAttribute("r", 1.5);
   svg.appendChild(dot);
+}
+
+// One episode drawn into a view (a path over the arena, the state dimensions, the frames) at step `at`.
+function drawView(view, ep, at) {
+  if (info.arena) drawPath(view.querySelector(".arena"), ep, at);
+  if (info.task.includes(":")) drawStates(view.querySelector(".dims"), ep, at);
+  drawFrame(view.querySelector(".frame"), ep, at);
+}
+
+function drawEpisode() {
+  drawView(document.getElementById("views"), current, frame);
+  if (!current) return;
+  document.getElementById("scrub").value = frame;
+  document.getElementById("step").textContent = `step ${frame} / ${current.length}`;
 }
 
 function stop() { if (timer) { clearInterval(timer); timer = null; } }
@@ -226,12 +229,120 @@ async function main() {
   document.getElementById("pause").addEventListener("click", stop);
   document.getElementById("scrub").addEventListener("input", (e) => { stop(); frame = Number(e.target.value); drawEpisode(); });
   // SVG elements have no .hidden property: toggle the attribute
-  document.getElementById("arena").toggleAttribute("hidden", !info.arena);
-  document.getElementById("dims").toggleAttribute("hidden", !info.task.includes(":"));
-  if (info.arena) drawArena();
-  await refresh(true);
+  for (const svg of document.querySelectorAll("svg.arena")) svg.toggleAttribute("hidden", !info.arena);
+  for (const svg of document.querySelectorAll("svg.dims")) svg.toggleAttribute("hidden", !info.task.includes(":"));
+  if (info.arena) for (const svg of document.querySelectorAll("svg.arena")) drawArena(svg, null);
+  setupCompare();
+  if (info.feedback !== "preferences") await refresh(true);
   await refreshTeam();
-  setInterval(() => Promise.all([refresh(!current), refreshTeam()]).catch(showError), 2000);
+  setInterval(() => Promise.all([info.feedback !== "preferences" ? refresh(!current) : null,
+                                 info.feedback !== "returns" ? refreshPairs(!pair) : null,
+                                 refreshTeam()]).catch(showError), 2000);
+}
+
+// Comparisons (feedback preferences or both): two episodes side by side, played together; the
+// person answers left / right / equal (published at once) or can't tell (not asked again).
+let pair = null, pairFrame = 0, pairTimer = null;
+
+function setupCompare() {
+  const asks = info.feedback !== "returns";
+  document.getElementById("compare").hidden = !asks;
+  document.getElementById("viewer").hidden = info.feedback === "preferences";
+  document.getElementById("queue-panel").hidden = info.feedback === "preferences";
+  document.getElementById("history-panel").hidden = info.feedback === "preferences";
+  if (!asks) return;
+  document.getElementById("pair-ordering").textContent = `pairs: ${info.pair_ordering}`;
+  for (const [id, answer] of [["left", "a"], ["right", "b"], ["equal", "equal"]]) {
+    document.getElementById(id).addEventListener("click", () => answerPair(answer));
+  }
+  document.getElementById("cant-tell").addEventListener("click", () => cantTell());
+  document.getElementById("pair-play").addEventListener("click", playPair);
+  document.addEventListener("keydown", (ev) => {
+    if (!pair || ev.target.tagName === "INPUT") return;
+    const key = {ArrowLeft: "a", ArrowRight: "b", "=": "equal", s: "cant"}[ev.key];
+    if (!key) return;
+    ev.preventDefault();
+    if (key === "cant") cantTell(); else answerPair(key);
+  });
+  refreshPairs(true).catch(showError);
+}
+
+function drawPair() {
+  if (!pair) return;
+  drawView(document.getElementById("view-a"), pair.a, pairFrame);
+  drawView(document.getElementById("view-b"), pair.b, pairFrame);
+  document.getElementById("pair-step").textContent =
+    `step ${pairFrame} / ${Math.max(pair.a.length, pair.b.length)}`;
+}
+
+function stopPair() { if (pairTimer) { clearInterval(pairTimer); pairTimer = null; } }
+function playPair() {
+  stopPair();
+  if (!pair) return;
+  const end = Math.max(pair.a.length, pair.b.length);
+  if (pairFrame >= end) pairFrame = 0;
+  pairTimer = setInterval(() => { if (pairFrame >= end) { stopPair(); return; } pairFrame += 1; drawPair(); }, 40);
+}
+
+async function openPair(a, b, why) {
+  stopPair(); showError(null);
+  const [ea, eb] = await Promise.all([api(`/api/episode/${a}`), api(`/api/episode/${b}`)]);
+  pair = {a: ea, b: eb};
+  document.getElementById("pair-title").textContent = `Episode ${a} (left) or episode ${b} (right)?`;
+  document.getElementById("pair-why").textContent = why;
+  document.getElementById("title-a").textContent = `episode ${a} (${ea.length} steps)`;
+  document.getElementById("title-b").textContent = `episode ${b} (${eb.length} steps)`;
+  pairFrame = 0;
+  drawPair();
+  playPair();
+}
+
+async function refreshPairs(openFirst) {
+  const [pairs, done] = await Promise.all([api("/api/pairs"), api("/api/comparisons")]);
+  document.getElementById("pair-count").textContent = `(${pairs.pairs.length} waiting)`;
+  const body = document.getElementById("comparisons");
+  body.replaceChildren();
+  const words = {a: "left", b: "right", equal: "equal"};
+  for (const c of done.comparisons) {
+    const tr = el("tr");
+    tr.append(el("td", c.a), el("td", c.b), el("td", words[c.preference]), el("td", c.corrections));
+    body.appendChild(tr);
+  }
+  if (openFirst && !pair && pairs.pairs.length) {
+    const first = pairs.pairs[0];
+    await openPair(first.a, first.b, first.why);
+  } else if (!pair) {
+    document.getElementById("pair-title").textContent = "No pair to compare yet";
+    for (const id of ["pair-why", "pair-step", "title-a", "title-b"]) document.getElementById(id).textContent = "";
+    for (const side of ["view-a", "view-b"]) {
+      const view = document.getElementById(side);
+      if (info.arena) drawArena(view.querySelector(".arena"), null);
+      view.querySelector(".dims").replaceChildren();
+      view.querySelector(".frame").hidden = true;
+    }
+  }
+  for (const id of ["left", "right", "equal", "cant-tell", "pair-play"]) document.getElementById(id).disabled = !pair;
+}
+
+async function answerPair(answer) {
+  if (!pair) return;
+  try {
+    const res = await api("/api/compare", {a: pair.a.episode, b: pair.b.episode, preference: answer});
+    const words = {a: "left better", b: "right better", equal: "equal"};
+    document.getElementById("status").textContent = `episodes ${res.a} and ${res.b}: ${words[res.preference]}`;
+    pair = null; stopPair();
+    await refreshPairs(true);
+  } catch (e) { showError(e); }
+}
+
+async function cantTell() {
+  if (!pair) return;
+  try {
+    await api("/api/cant_tell", {a: pair.a.episode, b: pair.b.episode});
+    document.getElementById("status").textContent = `episodes ${pair.a.episode} and ${pair.b.episode}: can't tell`;
+    pair = null; stopPair();
+    await refreshPairs(true);
+  } catch (e) { showError(e); }
 }
 
 main().catch(showError);
