@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from graph_helpers import Capture, finish, start
-from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
+from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from nmrm_ros.labelling import LabelQueue
 from nmrm_ros.labelling.active import DisagreementScorer
 from nmrm_ros.labelling.training_set import TrainingSet
@@ -19,7 +19,7 @@ from nmrm_ros.mil import OnlineRewardModel, save_checkpoint
 from nmrm_ros.mil.ensemble import init_ensemble
 from nmrm_ros.mil.models import model_config
 from nmrm_ros.mil.retrain import retrain_splits
-from nmrm_ros.ros.topics import OBSERVATION, TRAJECTORY_RETURN
+from nmrm_ros.ros.topics import OBSERVATION, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 
 def _ensemble_checkpoint(path, seeds, hidden_size: int = 2):
@@ -94,6 +94,7 @@ class Driver(Capture):
         super().__init__()
         self.obs = self.publisher(EnvObservation, OBSERVATION)
         self.labels = self.publisher(TrajectoryReturn, TRAJECTORY_RETURN)
+        self.comparisons = self.publisher(TrajectoryPreference, TRAJECTORY_PREFERENCE)
         self.param_clients: dict = {}
 
     def wait_for_subscribers(self, observation: int, labels: int = 0, timeout: float = 60.0) -> None:
@@ -119,6 +120,10 @@ class Driver(Capture):
     def label(self, episode: int, length: int, value: float, labeller: str = "person/test") -> None:
         self.labels.publish(TrajectoryReturn(task="key", episode=episode, length=length,
                                              return_value=value, labeller=labeller))
+
+    def compare(self, a: int, b: int, length: int, preference: int, labeller: str = "person/test") -> None:
+        self.comparisons.publish(TrajectoryPreference(task="key", episode_a=a, length_a=length, episode_b=b,
+                                                      length_b=length, preference=preference, labeller=labeller))
 
     def _call(self, node: str, request) -> object:
         """The answer of `node`'s parameter service to `request(client)` (a future), as `ros2 param`
@@ -210,7 +215,7 @@ def test_labels_retrain_and_the_reward_model_serves_the_new_version(ros_domain, 
         _, trainer_out = finish(trainer)
         _, reward_out = finish(reward)
     assert sources == {"key_v001"}, trainer_out + reward_out
-    assert "retraining key_v001 on 2 labelled episode(s)" in trainer_out, trainer_out
+    assert "retraining key_v001 on 2 episode(s)" in trainer_out, trainer_out
     assert "warm-started from" in trainer_out and "reward_model loads" in trainer_out, trainer_out
     assert "now serving key_v001" in reward_out, reward_out
     from nmrm_ros.datasets.trajectories import TrajectoryDataset
@@ -244,6 +249,43 @@ def test_a_restarted_trainer_starts_from_the_bags_and_the_newest_version(ros_dom
             break
     proc.terminate()
     code, rest = finish(proc)
-    assert "6 labelled episode(s) from bags" in line, line + rest
+    assert "6 labelled episode(s) and 0 comparison(s) from bags" in line, line + rest
     assert f"next version key_v003 in {out_dir}, warm-started from {out_dir / 'key_v002.pt'}" in line, line
     assert code == 0, rest
+
+
+def test_comparisons_retrain_and_the_reward_model_serves_the_new_version(ros_domain, tmp_path):
+    """feedback:=preferences: six episodes and ten comparisons by person/test (none has a return
+    label) make the trainer write key_v001 from the comparisons alone, and the reward model serves
+    it; the training set has the six episodes with return NaN and the ten comparisons."""
+    from nmrm_ros.datasets.trajectories import TrajectoryDataset
+
+    out_dir = tmp_path / "checkpoints"
+    a, _ = _ensemble_checkpoint(tmp_path / "key_a", [0, 1])
+    reward = start("reward_model", task="key", mode="model", checkpoint=a)
+    trainer = start("trainer", task="key", retrain_every=10, members=2, max_epochs=3, out_dir=out_dir,
+                    labeller_web="''", labeller="[person/test]", feedback="preferences")
+    driver = Driver()
+    try:
+        driver.wait_for_subscribers(observation=2)
+        assert driver.spin_until(lambda: driver.comparisons.get_subscription_count() >= 2, 30)
+        for e in range(6):
+            driver.play(e, _states(e, 20))
+        pairs = [(a, b) for a in range(6) for b in range(a + 1, 6)][:10]
+        for i, (x, y) in enumerate(pairs):
+            driver.compare(x, y, 20, (1, -1, 0)[i % 3])
+        written = driver.spin_until(lambda: (out_dir / "key_v001.json").is_file(), 120)
+        served = written and driver.spin_until(
+            lambda: driver.get_checkpoint("reward_model") == str(out_dir / "key_v001.pt"), 30)
+    finally:
+        driver.close()
+        for proc in (trainer, reward):
+            proc.terminate()
+        _, trainer_out = finish(trainer)
+        _, reward_out = finish(reward)
+    assert written and served, trainer_out + reward_out
+    assert "retraining key_v001 on 6 episode(s) and 10 comparison(s)" in trainer_out, trainer_out
+    assert "0 labels, 10 comparisons, validation preference loss" in trainer_out, trainer_out
+    ds = TrajectoryDataset.load(out_dir / ".datasets" / "key_v001.npz")
+    assert np.isnan(ds.returns).all() and len(ds) == 6 and len(ds.preferences) == 10
+    assert sorted(ds.preferences[:, 2].tolist()) == sorted([(1, 0, 0.5)[i % 3] for i in range(10)])

@@ -61,12 +61,15 @@ def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILE
 
 
 def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lstm", members: int = 5,
-            max_epochs: int = 40, seed: int = 0, init: str | None = None, threads: int = 1) -> dict:
-    """Train a `members`-member ensemble on `ds` (warm-started from `init` where it fits), save it
-    to `out` (.pt + .json) and return a summary: labels, validation return MSE of the ensemble
-    mean, best epochs, seconds, how it started."""
+            max_epochs: int = 40, seed: int = 0, init: str | None = None, threads: int = 1,
+            feedback: str = "returns") -> dict:
+    """Train a `members`-member ensemble on `ds` from `feedback` (returns | preferences | both;
+    warm-started from `init` where it fits), save it to `out` (.pt + .json) and return a summary:
+    labels, comparisons, the validation loss (members' mean) and the ensemble mean's validation
+    return MSE (NaN without return labels) and preference accuracy, best epochs, seconds, how it
+    started."""
     t0 = time.perf_counter()
-    cfg = load_train_config(ds.task, max_epochs=max_epochs, seed=seed, threads=threads)
+    cfg = load_train_config(ds.task, max_epochs=max_epochs, seed=seed, threads=threads, feedback=feedback)
     config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
                           hidden_size=cfg.hidden_size)
     splits = retrain_splits(len(ds), members, seed)
@@ -77,11 +80,15 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
         ens = init_ensemble(config, seeds)
     result = train_ensemble(ens, ds, splits, cfg, seeds=seeds, progress=False, fresh=fresh)
     val = splits[0][1]
-    member_val = [evaluate(ens.member(m), ds.subset(val))["return_mse"] for m in range(members)]
-    serving = int(np.argmin(member_val))
+    member_val = list(result.best_val_loss)
+    serving = int(np.argmin(member_val))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     val_metrics = evaluate(ens, ds.subset(val))
-    summary = {"labels": len(ds), "validation_bags": len(val), "val_return_mse": val_metrics["return_mse"],
+    summary = {"labels": int(np.isfinite(ds.returns).sum()), "episodes": len(ds),
+               "comparisons": 0 if ds.preferences is None else len(ds.preferences), "feedback": feedback,
+               "validation_bags": len(val), "val_loss": float(np.mean(member_val)),
+               "val_return_mse": val_metrics["return_mse"],
+               "val_preference_accuracy": val_metrics["preference_accuracy"],
                "val_return_std": val_metrics.get("return_std", 0.0), "best_epochs": result.best_epochs,
                "epochs_run": result.epochs_run, "start": start,
                "seconds": round(time.perf_counter() - t0, 2)}
@@ -90,7 +97,7 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
         data={"source": "live labels", "n": len(ds), "meta": ds.meta},
         ensemble={"members": members, "seeds": seeds, "split_seeds": [seed] * members,
                   "split_mode": "bootstrap", "serving_member": serving},
-        metrics={"val": val_metrics, "member_val_return_mse": member_val, **summary})
+        metrics={"val": val_metrics, "member_val_loss": member_val, **summary})
     summary["checkpoint"] = str(path)
     return summary
 
@@ -105,10 +112,12 @@ def main(argv: list | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--init", default=None, help="checkpoint to warm-start from")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--feedback", default="returns", help="returns | preferences | both")
     a = parser.parse_args(argv)
     try:
         ds = TrajectoryDataset.load(a.dataset)
-        summary = retrain(ds, a.out, a.architecture, a.members, a.max_epochs, a.seed, a.init, a.threads)
+        summary = retrain(ds, a.out, a.architecture, a.members, a.max_epochs, a.seed, a.init, a.threads,
+                          a.feedback)
     except (ValueError, OSError) as exc:
         print(json.dumps({"error": f"{type(exc).__name__}: {exc}"}))
         return 1

@@ -13,6 +13,10 @@ its queue by the new members' disagreement). Labels that arrive during a trainin
 the next one. Every version records the labels it was built from (labeller, source, episode,
 return, when) in its checkpoint's JSON (`nmrm labels report --checkpoint C` lists them).
 
+`feedback`: what it learns from — returns (TrajectoryReturn), preferences (TrajectoryPreference
+on `nmrm/trajectory_preference`, the same labellers; a Bradley–Terry loss) or both; with
+preferences, every `retrain_every` new comparisons trigger a retraining.
+
 `bags`: recordings and labels bags read at start (e.g. an earlier session's), so a restarted
 trainer starts from what was labelled before. The child process dies with the node.
 """
@@ -32,11 +36,11 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
+from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
-from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 PARAMETERS = {
     "task": Param("key", "task of the episodes and labels"),
@@ -52,6 +56,7 @@ PARAMETERS = {
     "reward_model": Param("reward_model", "node told to load each new checkpoint ('' = none)"),
     "labeller_web": Param("labeller_web", "node whose queue each new checkpoint orders ('' = none)"),
     "bags": Param([""], "recordings and labels bags read at start (labels of `labeller`)"),
+    "feedback": Param("returns", "what to learn from: returns | preferences (comparisons) | both"),
 }
 
 
@@ -79,6 +84,8 @@ class TrainerNode(Node):
         self.task = p["task"]
         if p["architecture"] not in ARCHITECTURES:
             raise NodeError(f"unknown architecture {p['architecture']!r}; known: {', '.join(ARCHITECTURES)}")
+        if p["feedback"] not in ("returns", "preferences", "both"):
+            raise NodeError(f"feedback must be returns, preferences or both, got {p['feedback']!r}")
         self.p = p
         self.labellers = [str(x) for x in p["labeller"] if str(x)]
         self.set = TrainingSet(self.task, self.info.state_size, source=self.get_namespace().rstrip("/"))
@@ -96,12 +103,16 @@ class TrainerNode(Node):
         self._read_bags([b for b in p["bags"] if b])
         self.param_clients = {name: self._client(name) for name in (p["reward_model"], p["labeller_web"]) if name}
         self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
-        self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label, STEP_QOS)
+        if p["feedback"] != "preferences":
+            self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label, STEP_QOS)
+        if p["feedback"] != "returns":
+            self.create_subscription(TrajectoryPreference, TRAJECTORY_PREFERENCE, self.on_comparison, STEP_QOS)
         self.create_timer(0.5, self.poll)
         self.get_logger().info(
-            f"task {self.task}: retraining a {p['members']}-member {p['architecture']} every "
+            f"task {self.task}: retraining a {p['members']}-member {p['architecture']} from {p['feedback']} every "
             f"{p['retrain_every']} new label(s) of {', '.join(self.labellers) or 'any labeller'}; "
-            f"{len(self.set.joined())} labelled episode(s) from bags; next version "
+            f"{len(self.set.joined())} labelled episode(s) and {len(self.set.joined_comparisons())} "
+            f"comparison(s) from bags; next version "
             f"{self._name(self.version + 1)} in {self.out_dir}, warm-started from {self.latest or 'nothing'}")
 
     # -- inputs ------------------------------------------------------------------------------------
@@ -116,13 +127,17 @@ class TrainerNode(Node):
 
         if not bags:
             return
-        labels = []
+        labels, comparisons = [], []
         for bag in bags:
             try:
-                labels += [m for _, t, _, m in iter_decoded(bag) if t.endswith("TrajectoryReturn")]
+                for _, t, log_ns, m in iter_decoded(bag):
+                    if t.endswith("TrajectoryReturn") and self.p["feedback"] != "preferences":
+                        labels.append(m)
+                    elif t.endswith("TrajectoryPreference") and self.p["feedback"] != "returns":
+                        comparisons.append((m, log_ns))
             except BagError as exc:
                 raise NodeError(str(exc)) from None
-        for labeller in sorted({m.labeller for m in labels if self._wanted(m.labeller)}):
+        for labeller in sorted({m.labeller for m in labels + [c for c, _ in comparisons] if self._wanted(m.labeller)}):
             try:
                 ds, _ = load_bag_dataset(bags, task=self.task, labeller=labeller)
             except BagError:
@@ -130,7 +145,12 @@ class TrainerNode(Node):
             for i, ep in enumerate(ds.meta["episodes"]):
                 n = int(ds.lengths[i])
                 self.set.add_episode(ep, np.concatenate([ds.states[i, :n], ds.final_states[i][None]]))
-                self.set.add_label(labeller, ep, n, float(ds.returns[i]), ds.meta["labels"][i]["stamp_ns"])
+                if np.isfinite(ds.returns[i]) and self.p["feedback"] != "preferences":
+                    self.set.add_label(labeller, ep, n, float(ds.returns[i]), ds.meta["labels"][i]["stamp_ns"])
+        for m, log_ns in comparisons:
+            if m.task == self.task and self._wanted(m.labeller) and m.preference in (-1, 0, 1):
+                self.set.add_comparison(m.labeller, m.episode_a, m.length_a, m.episode_b, m.length_b,
+                                        (m.preference + 1) / 2, log_ns)
 
     def on_observation(self, msg: EnvObservation) -> None:
         kind, state, _ = self.follower.follow(msg, self.task, self.info.state_size)
@@ -154,6 +174,19 @@ class TrainerNode(Node):
             return
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         if self.set.add_label(msg.labeller, msg.episode, msg.length, msg.return_value, stamp):
+            self.new_labels += 1
+        self.maybe_retrain()
+
+    def on_comparison(self, msg: TrajectoryPreference) -> None:
+        if msg.task != self.task or not self._wanted(msg.labeller):
+            return
+        if msg.preference not in (-1, 0, 1) or msg.episode_a == msg.episode_b:
+            self.get_logger().warning(f"ignoring a comparison of episodes {msg.episode_a} and {msg.episode_b} "
+                                      f"with preference {msg.preference}")
+            return
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        if self.set.add_comparison(msg.labeller, msg.episode_a, msg.length_a, msg.episode_b, msg.length_b,
+                                   (msg.preference + 1) / 2, stamp):
             self.new_labels += 1
         self.maybe_retrain()
 
@@ -183,14 +216,15 @@ class TrainerNode(Node):
         cmd = [sys.executable, "-m", "nmrm_ros.mil.retrain", "--dataset", str(path),
                "--out", str(self.out_dir / name), "--architecture", self.p["architecture"],
                "--members", str(self.p["members"]), "--max-epochs", str(self.p["max_epochs"]),
-               "--seed", str(self.p["seed"] + self.version)]
+               "--seed", str(self.p["seed"] + self.version), "--feedback", self.p["feedback"]]
         if self.latest:
             cmd += ["--init", str(self.latest)]
         self.new_labels = 0
         self.job = {"name": name, "labels": len(ds), "started": time.monotonic()}
+        compared = f" and {len(ds.preferences)} comparison(s)" if ds.preferences is not None else ""
         self.child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                       preexec_fn=_die_with_parent)
-        self.get_logger().info(f"retraining {name} on {len(ds)} labelled episode(s)")
+        self.get_logger().info(f"retraining {name} on {len(ds)} episode(s){compared}")
 
     def poll(self) -> None:
         if self.child is None or self.child.poll() is None:
@@ -206,9 +240,12 @@ class TrainerNode(Node):
             self.get_logger().error(f"retraining {name} failed: {summary.get('error')}")
         else:
             self.latest = summary["checkpoint"]
+            fit = (f"validation return MSE {summary['val_return_mse']:.3f}"
+                   if summary["val_return_mse"] == summary["val_return_mse"] else
+                   f"validation preference loss {summary['val_loss']:.3f}")
             self.get_logger().info(
-                f"{name}: {summary['labels']} labels, validation return MSE "
-                f"{summary['val_return_mse']:.3f} ({summary['validation_bags']} bag(s)), members' "
+                f"{name}: {summary['labels']} labels, {summary['comparisons']} comparisons, {fit} "
+                f"({summary['validation_bags']} bag(s)), members' "
                 f"spread {summary['val_return_std']:.3f}, {summary['seconds']:.1f} s, {summary['start']}")
             for client in self.param_clients.values():
                 self._tell(client, self.latest)
