@@ -1,0 +1,200 @@
+"""Reward models from preferences: held-out preference accuracy and learnt-vs-true reward
+correlation against the number of comparisons, CSC vs the Instance Space NN, perfect and noisy
+simulated teachers (and return labels for reference).
+
+    .venv/bin/python bench/preferences.py --tasks key timer charger --jobs 2
+    .venv/bin/python bench/preferences.py --tasks key --pairs 1000 --archs csc_lstm --teachers perfect --seeds 0
+    .venv/bin/python bench/preferences.py --report
+
+Run (task, arch, teacher, n, seed r): the screened dataset of data seed r (5000 episodes, the
+any-dataset protocol), split r (80/10/10); teacher `perfect` (B-Pref's oracle: beta = inf) or
+`noisy` (beta = 1, mistake 0.1) compares n uniformly drawn pairs (seed r; a comparison with a
+test episode is never trained on), and the task's default model (config/mil_training.yaml,
+weight seeds r + 1000 j) trains on them with the Bradley–Terry loss (`--feedback preferences`);
+teacher `returns` trains on the return labels of n episodes (a seeded subset) instead, for
+reference. Scored on 2000 held-out screened episodes of data seed 999: preference accuracy over
+all pairs with different true returns, and Pearson's r of the predicted and the oracle's per-step
+rewards. Each cell: mean [worst] over seeds.
+
+Resumes: each run is bench/results/preferences/<tag>/<task>_<arch>_<teacher>_n<n>_s<r>.json; a run
+whose file exists is not trained again.
+"""
+
+from __future__ import annotations
+
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
+import argparse
+import json
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from reproduce_tables import load_dataset, parse_overrides
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results" / "preferences"
+TASKS = ("key", "timer", "charger", "moving")
+ARCHS = ("csc_lstm", "instance_nn")
+TEACHERS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}, "returns": None}
+PAIRS = (250, 500, 1000, 2000, 4000)
+HELD_OUT_SEED, HELD_OUT_N = 999, 2000
+
+
+def run_name(task: str, arch: str, teacher: str, n: int, r: int) -> str:
+    return f"{task}_{arch}_{teacher}_n{n}_s{r}"
+
+
+def training_data(task: str, teacher: str, n: int, r: int):
+    """(dataset, feedback) of run (task, teacher, n, r): n comparisons of the teacher, or n
+    return-labelled episodes."""
+    from nmrm_ros.datasets.preference_teacher import SimulatedTeacher, with_preferences
+
+    ds = load_dataset(task, 5000, r)
+    if TEACHERS[teacher] is None:
+        pick = np.sort(np.random.default_rng([r, 0x51]).permutation(len(ds))[:n])
+        return ds.subset(pick), "returns"
+    return with_preferences(ds, n, SimulatedTeacher(**TEACHERS[teacher]), seed=r), "preferences"
+
+
+def run(job: tuple) -> dict:
+    """Train and score one run; writes and returns its result."""
+    task, arch, teacher, n, r, overrides, out = job
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.mil import evaluate, load_train_config, model_config
+    from nmrm_ros.mil.data import split_indices
+    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
+    from nmrm_ros.mil.training import train_ensemble
+
+    ds, feedback = training_data(task, teacher, n, r)
+    held = load_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
+    cfg = load_train_config(task, seed=r, feedback=feedback, **overrides)
+    seeds = [r + 1000 * j for j in range(cfg.members)]
+    train, val, test = split_indices(len(ds), r)
+    ens = init_ensemble(model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout,
+                                     hidden_size=cfg.hidden_size), seeds)
+    t0 = time.perf_counter()
+    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
+    seconds = time.perf_counter() - t0
+    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
+    on_test, on_held = evaluate(mean, ds.subset(test)), evaluate(mean, held)
+    keep = ("preference_accuracy", "reward_correlation", "return_mse", "reward_mse")
+    res = {"task": task, "arch": arch, "teacher": teacher, "teacher_knobs": TEACHERS[teacher], "n": n,
+           "seed": r, "data_seed": r, "weight_seeds": seeds, "feedback": feedback,
+           "comparisons": 0 if ds.preferences is None else len(ds.preferences),
+           "test": {k: on_test[k] for k in keep}, "held": {k: on_held[k] for k in keep},
+           "best_epochs": result.best_epochs, "epochs": result.epochs_run,
+           "still_improving": result.still_improving, "seconds": seconds, "config": cfg.to_dict()}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{run_name(task, arch, teacher, n, r)}.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def _cell(runs: list, key: str, worst=min) -> str:
+    values = [r["held"][key] for r in runs]
+    if not values or any(v != v for v in values):
+        return f"{'–':>15s}"
+    return f"{np.mean(values):6.3f} [{worst(values):6.3f}]"
+
+
+def report(out: Path) -> str:
+    runs = [json.loads(p.read_text()) for p in sorted(out.glob("*_s*.json"))]
+    lines = [f"# {out.relative_to(ROOT)}: held-out ({HELD_OUT_N} episodes of data seed {HELD_OUT_SEED}) "
+             "preference accuracy (all pairs with different true returns) and reward correlation "
+             "(Pearson r, per step); mean [worst] over seeds; teacher perfect: beta = inf; noisy: "
+             "beta = 1, mistake 0.1; returns: n return labels instead of n comparisons",
+             f"{'task':8s} {'arch':12s} {'teacher':8s} {'n':>5s} {'seeds':>5s} {'pref. accuracy':>15s} "
+             f"{'reward corr.':>15s} {'s/run':>6s}"]
+    key = lambda r: (TASKS.index(r["task"]), ARCHS.index(r["arch"]), list(TEACHERS).index(r["teacher"]), r["n"])
+    groups: dict = {}
+    for r in sorted(runs, key=key):
+        groups.setdefault(key(r), []).append(r)
+    for cell in groups.values():
+        r0 = cell[0]
+        lines.append(f"{r0['task']:8s} {r0['arch']:12s} {r0['teacher']:8s} {r0['n']:5d} "
+                     f"{','.join(str(r['seed']) for r in cell):>5s} {_cell(cell, 'preference_accuracy')} "
+                     f"{_cell(cell, 'reward_correlation')} {np.mean([r['seconds'] for r in cell]):6.0f}")
+    return "\n".join(lines)
+
+
+def plot(out: Path) -> Path | None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [json.loads(p.read_text()) for p in sorted(out.glob("*_s*.json"))]
+    tasks = [t for t in TASKS if any(r["task"] == t for r in runs)]
+    if not tasks:
+        return None
+    fig, axes = plt.subplots(2, len(tasks), figsize=(4.2 * len(tasks), 6.5), squeeze=False)
+    styles = {("csc_lstm", "perfect"): ("C0", "-"), ("csc_lstm", "noisy"): ("C0", "--"),
+              ("instance_nn", "perfect"): ("C3", "-"), ("instance_nn", "noisy"): ("C3", "--"),
+              ("csc_lstm", "returns"): ("0.4", ":"), ("instance_nn", "returns"): ("C1", ":")}
+    for col, task in enumerate(tasks):
+        for row, metric in enumerate(("preference_accuracy", "reward_correlation")):
+            ax = axes[row, col]
+            for (arch, teacher), (colour, line) in styles.items():
+                cell = [r for r in runs if (r["task"], r["arch"], r["teacher"]) == (task, arch, teacher)]
+                ns = sorted({r["n"] for r in cell})
+                if not ns:
+                    continue
+                worst = [min(r["held"][metric] for r in cell if r["n"] == n) for n in ns]
+                mean = [np.mean([r["held"][metric] for r in cell if r["n"] == n]) for n in ns]
+                ax.plot(ns, worst, line, color=colour, marker="o", label=f"{arch}, {teacher} (worst seed)")
+                ax.plot(ns, mean, line, color=colour, alpha=0.35)
+            ax.set_xscale("log")
+            ax.set_title(f"{task}: {metric.replace('_', ' ')}")
+            ax.set_xlabel("comparisons (returns: labels)")
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    path = out / "preferences.png"
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tasks", nargs="*", default=["key", "timer", "charger"], choices=TASKS)
+    parser.add_argument("--archs", nargs="*", default=list(ARCHS), choices=ARCHS)
+    parser.add_argument("--teachers", nargs="*", default=["perfect", "noisy"], choices=list(TEACHERS))
+    parser.add_argument("--pairs", nargs="*", type=int, default=list(PAIRS), help="comparisons (or labels)")
+    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="training-config overrides")
+    parser.add_argument("--tag", default="head", help="results go to bench/results/preferences/TAG/")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--report", action="store_true", help="train nothing: print the table and plot")
+    args = parser.parse_args()
+    out = RESULTS / args.tag
+    if not args.report:
+        overrides = parse_overrides(args.set)
+        # the cheapest first: a sitting cut short leaves the small cells complete
+        jobs = sorted(((t, a, k, n, r, overrides, out) for t in args.tasks for a in args.archs
+                       for k in args.teachers for n in args.pairs for r in args.seeds
+                       if not (out / f"{run_name(t, a, k, n, r)}.json").is_file()),
+                      key=lambda j: (j[3], j[4], j[0], j[1], j[2]))
+        print(f"# {len(jobs)} runs to train (finished ones skipped), overrides {overrides}", flush=True)
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for res in pool.map(run, jobs):
+                h = res["held"]
+                print(f"  {run_name(res['task'], res['arch'], res['teacher'], res['n'], res['seed'])}: held-out "
+                      f"preference accuracy {h['preference_accuracy']:.3f}, reward correlation "
+                      f"{h['reward_correlation']:.3f} ({res['epochs']} epochs, {res['seconds']:.0f} s)", flush=True)
+    text = report(out)
+    print(text)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table.txt").write_text(text + f"\n# command: bench/preferences.py --tag {args.tag} (runs: one "
+                                   f"JSON each in this directory){' --set ' + ' '.join(args.set) if args.set else ''}\n")
+    png = plot(out)
+    if png:
+        print(f"# plot: {png.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()
