@@ -16,8 +16,13 @@ reference. Scored on 2000 held-out screened episodes of data seed 999: preferenc
 all pairs with different true returns, and Pearson's r of the predicted and the oracle's per-step
 rewards. Each cell: mean [worst] over seeds.
 
-Resumes: each run is bench/results/preferences/<tag>/<task>_<arch>_<teacher>_n<n>_s<r>.json; a run
-whose file exists is not trained again.
+RL (`--rl`): double DQN through the wrapper (config/rl.yaml, 400 episodes, agent seed r) on the
+CSC models of (perfect, 4000 comparisons) and of (returns, 4000 labels), seed r each, judged by
+the oracle: final oracle return = mean of the last 50 episodes. The models are the runs above
+(their checkpoints are kept in runs/preferences/<tag>/models/; a run without one is trained again).
+
+Resumes: each run is bench/results/preferences/<tag>/<task>_<arch>_<teacher>_n<n>_s<r>.json, each
+agent's curve bench/results/preferences/<tag>/agents/<name>/curve.csv; what exists is not run again.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ ARCHS = ("csc_lstm", "instance_nn")
 TEACHERS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}, "returns": None}
 PAIRS = (250, 500, 1000, 2000, 4000)
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
+MODELS = ROOT / "runs" / "preferences"  # checkpoints of the runs (not in git)
+RL_N, FINAL_WINDOW = 4000, 50
 
 
 def run_name(task: str, arch: str, teacher: str, n: int, r: int) -> str:
@@ -90,9 +97,66 @@ def run(job: tuple) -> dict:
            "test": {k: on_test[k] for k in keep}, "held": {k: on_held[k] for k in keep},
            "best_epochs": result.best_epochs, "epochs": result.epochs_run,
            "still_improving": result.still_improving, "seconds": seconds, "config": cfg.to_dict()}
+    from nmrm_ros.mil import save_checkpoint
+
+    serving = int(np.argmin(result.best_val_loss))
+    mean.serving_member.fill_(serving)
+    save_checkpoint(mean, MODELS / out.name / "models" / run_name(task, arch, teacher, n, r), task=task, seed=r,
+                    split_seed=r, train_config=cfg.to_dict(), ensemble={"members": len(seeds), "seeds": seeds,
+                                                                        "serving_member": serving},
+                    metrics={"test": on_test, "held": on_held})
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{run_name(task, arch, teacher, n, r)}.json").write_text(json.dumps(res, indent=1))
     return res
+
+
+def agent(job: tuple) -> dict:
+    """Train (or reuse) the agent on the model of run (task, csc_lstm, teacher, RL_N, r)."""
+    task, teacher, r, overrides, out, episodes = job
+    import csv
+
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.rl import train_agent
+
+    name = run_name(task, "csc_lstm", teacher, RL_N, r)
+    checkpoint = MODELS / out.name / "models" / f"{name}.pt"
+    if not checkpoint.is_file():
+        run((task, "csc_lstm", teacher, RL_N, r, overrides, out))
+    agent_dir = out / "agents" / name
+    curve = agent_dir / "curve.csv"
+    if not curve.is_file():
+        t0 = time.perf_counter()
+        train_agent(task, "model", checkpoint=checkpoint, episodes=episodes, seed=r,
+                    out=MODELS / out.name / "agents" / name, progress=False)
+        agent_dir.mkdir(parents=True, exist_ok=True)
+        for f in ("curve.csv", "agent.json"):
+            (agent_dir / f).write_bytes((MODELS / out.name / "agents" / name / f).read_bytes())
+        seconds = time.perf_counter() - t0
+    else:
+        seconds = float("nan")
+    with open(curve) as f:
+        returns = [float(row["oracle_return"]) for row in csv.DictReader(f)]
+    return {"task": task, "teacher": teacher, "seed": r, "final": float(np.mean(returns[-FINAL_WINDOW:])),
+            "episodes": len(returns), "seconds": seconds}
+
+
+def rl_report(out: Path, results: list) -> str:
+    lines = [f"# {out.relative_to(ROOT)}/agents: double DQN through the wrapper (config/rl.yaml) on the CSC model "
+             f"trained from {RL_N} comparisons of a perfect teacher vs from {RL_N} return labels; final oracle "
+             f"return = mean of the last {FINAL_WINDOW} episodes; mean [worst] over seeds",
+             f"{'task':8s} {'from returns':>18s} {'from comparisons':>18s} {'ratio':>6s} seeds"]
+    for task in TASKS:
+        cell = {k: [x["final"] for x in results if x["task"] == task and x["teacher"] == k]
+                for k in ("returns", "perfect")}
+        if not cell["returns"] or not cell["perfect"]:
+            continue
+        ratio = np.mean(cell["perfect"]) / np.mean(cell["returns"]) if np.mean(cell["returns"]) > 0 else float("nan")
+        seeds = sorted({x["seed"] for x in results if x["task"] == task})
+        lines.append(f"{task:8s} {np.mean(cell['returns']):8.2f} [{min(cell['returns']):6.2f}] "
+                     f"{np.mean(cell['perfect']):8.2f} [{min(cell['perfect']):6.2f}] {ratio:6.0%} {seeds}")
+    return "\n".join(lines)
 
 
 def _cell(runs: list, key: str, worst=min) -> str:
@@ -170,8 +234,23 @@ def main() -> None:
     parser.add_argument("--tag", default="head", help="results go to bench/results/preferences/TAG/")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true", help="train nothing: print the table and plot")
+    parser.add_argument("--rl", action="store_true", help="train agents on the models of 4000 comparisons "
+                                                         "and of 4000 return labels (see above)")
+    parser.add_argument("--episodes", type=int, default=400, help="--rl: episodes per agent")
     args = parser.parse_args()
     out = RESULTS / args.tag
+    if args.rl:
+        overrides = parse_overrides(args.set)
+        jobs = [(t, k, r, overrides, out, args.episodes) for r in args.seeds for t in args.tasks
+                for k in ("returns", "perfect")]
+        print(f"# {len(jobs)} agents (finished ones reused)", flush=True)
+        with ProcessPoolExecutor(args.jobs) as pool:
+            results = list(pool.map(agent, jobs))
+        text = rl_report(out, results)
+        print(text)
+        (out / "rl.txt").write_text(text + f"\n# command: bench/preferences.py --rl --tasks {' '.join(args.tasks)} "
+                                    f"--seeds {' '.join(map(str, args.seeds))} --episodes {args.episodes}\n")
+        return
     if not args.report:
         overrides = parse_overrides(args.set)
         # the cheapest first: a sitting cut short leaves the small cells complete
