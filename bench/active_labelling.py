@@ -13,7 +13,14 @@ ensemble mean.
 
     .venv/bin/python bench/active_labelling.py --seeds 0 1 2 --labels 300 --batch 20 --pool 600
     .venv/bin/python bench/active_labelling.py ... --screener-order --out bench/results/active_labelling_screener_order
-Writes bench/results/active_labelling.{json,txt,png}.
+    .venv/bin/python bench/active_labelling.py --feedback preferences --labels 300 --batch 20 --pool 600
+Writes bench/results/active_labelling.{json,txt,png} (--feedback preferences: active_preferences.*).
+
+With `--feedback preferences` the person compares instead: it takes the first pair the page
+offers (`/api/pairs`; active arm: the pairs whose P(left better) the members disagree on most,
+among the `--pair-window` oldest episodes needing comparisons; oldest arm: the oldest pairs) and
+posts the oracle's answer (a perfect teacher); the trainer learns from the comparisons. Versions
+are scored by held-out preference accuracy and reward correlation (scale-free).
 """
 
 from __future__ import annotations
@@ -36,6 +43,8 @@ from nmrm_ros.ros.ament_paths import node_command
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "bench" / "results"
+#: the two test metrics reported per feedback
+KEYS = {"returns": ("return_mse", "reward_mse"), "preferences": ("preference_accuracy", "reward_correlation")}
 
 
 class Proc:
@@ -78,10 +87,11 @@ def run_arm(arm: str, seed: int, pool_bag: Path, returns: dict, work: Path, args
     os.environ["ROS_DOMAIN_ID"] = str(100 + seed * 2 + (arm == "active"))
     out = work / f"{arm}_{seed}"
     web = Proc("labeller_web", task="key", port=0, person="sim", labels_dir=out / "labels",
-               max_episodes=len(returns))
+               max_episodes=len(returns), feedback=args.feedback, pair_window=args.pair_window)
     trainer = Proc("trainer", task="key", retrain_every=args.batch, members=args.members,
                    max_epochs=args.max_epochs, seed=seed, out_dir=out / "checkpoints",
-                   reward_model="''", labeller_web="labeller_web" if arm == "active" else "''")
+                   reward_model="''", labeller_web="labeller_web" if arm == "active" else "''",
+                   feedback=args.feedback)
     base = web.wait_for("labelling page: ", timeout=60).split("labelling page: ")[1].split()[0]
     replay = Proc("replay", bag=pool_bag, topics="[/nmrm/observation]", wait_for_subscribers=2,
                   wait_for_nodes="[labeller_web, trainer]", start_delay=1.0)
@@ -97,6 +107,12 @@ def run_arm(arm: str, seed: int, pool_bag: Path, returns: dict, work: Path, args
             time.sleep(0.5)
         for version in range(1, args.labels // args.batch + 1):
             for _ in range(args.batch):
+                if args.feedback == "preferences":
+                    pair = api(base, "/api/pairs")["pairs"][0]
+                    ra, rb = returns[pair["a"]], returns[pair["b"]]
+                    answer = "a" if ra > rb else "b" if rb > ra else "equal"
+                    api(base, "/api/compare", {"a": pair["a"], "b": pair["b"], "preference": answer})
+                    continue
                 first = api(base, "/api/queue")["episodes"][0]
                 api(base, "/api/label", {"episode": first["episode"], "return": returns[first["episode"]]})
             name = f"key_v{version:03d}"
@@ -123,8 +139,13 @@ def main() -> int:
     parser.add_argument("--max-epochs", type=int, default=40)
     parser.add_argument("--screener-order", action="store_true",
                         help="play the pool in the screener's order (key-then-treasure episodes last)")
-    parser.add_argument("--out", type=Path, default=RESULTS / "active_labelling")
+    parser.add_argument("--feedback", default="returns", choices=["returns", "preferences"])
+    parser.add_argument("--pair-window", type=int, default=30, help="--feedback preferences: labeller_web's pair_window")
+    parser.add_argument("--out", type=Path, default=None, help="default bench/results/active_labelling "
+                                                              "(--feedback preferences: active_preferences)")
     args = parser.parse_args()
+    if args.out is None:
+        args.out = RESULTS / ("active_preferences" if args.feedback == "preferences" else "active_labelling")
 
     from nmrm_ros.bags import write_dataset_bag
     from nmrm_ros.datasets import generate_screened
@@ -147,20 +168,26 @@ def main() -> int:
                 model, _ = load_checkpoint(ckpt, task="key")
                 m = evaluate(model, test)
                 rows.append({"arm": arm, "seed": seed, "labels": labels, "seconds": round(seconds, 1),
-                             "return_mse": m["return_mse"], "reward_mse": m["reward_mse"]})
+                             "return_mse": m["return_mse"], "reward_mse": m["reward_mse"],
+                             "preference_accuracy": m["preference_accuracy"],
+                             "reward_correlation": m["reward_correlation"]})
     wall = time.monotonic() - start
     lines = [f"# Key, pool {args.pool} screened episodes (data seed 1, played in {'the screener' if args.screener_order else 'a random'} order per seed), test {args.test} (data seed 2); "
              f"{args.members}-member CSC ensembles, {args.max_epochs} epochs per version, warm-started; "
              f"a version every {args.batch} labels; seeds {args.seeds}",
-             "test MSE of the ensemble mean: mean over seeds [worst]",
-             f"{'labels':>6}  {'oldest: return':>20} {'reward':>20}   {'active: return':>20} {'reward':>20}"]
+             (f"feedback {args.feedback}: a simulated person answering the page's API (pair window "
+              f"{args.pair_window}); " if args.feedback == "preferences" else "")
+             + "test metrics of the ensemble mean: mean over seeds [worst]",
+             f"{'labels':>6}  {'oldest: ' + KEYS[args.feedback][0]:>20} {KEYS[args.feedback][1]:>20}   "
+             f"{'active: ' + KEYS[args.feedback][0]:>20} {KEYS[args.feedback][1]:>20}"]
     for labels in sorted({r["labels"] for r in rows}):
         cells = []
         for arm in ("oldest", "active"):
             sel = [r for r in rows if r["arm"] == arm and r["labels"] == labels]
-            for key in ("return_mse", "reward_mse"):
+            for key in KEYS[args.feedback]:
                 v = np.array([r[key] for r in sel])
-                cells.append(f"{v.mean():10.4f} [{v.max():8.4f}]")
+                worst = v.min() if key in ("preference_accuracy", "reward_correlation") else v.max()
+                cells.append(f"{v.mean():10.4f} [{worst:8.4f}]")
         lines.append(f"{labels:6d}  " + " ".join(cells[:2]) + "   " + " ".join(cells[2:]))
     lines.append(f"# wall time {wall:.0f} s")
     text = "\n".join(lines)
@@ -175,15 +202,16 @@ def main() -> int:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.5))
-    for ax, key in zip(axes, ("return_mse", "reward_mse")):
+    for ax, key in zip(axes, KEYS[args.feedback]):
         for arm, colour in (("oldest", "tab:grey"), ("active", "tab:blue")):
             xs = sorted({r["labels"] for r in rows if r["arm"] == arm})
             vals = np.array([[r[key] for r in rows if r["arm"] == arm and r["labels"] == x] for x in xs])
             ax.plot(xs, vals.mean(1), "o-", color=colour, label=f"{arm} first" if arm == "oldest" else
                     "largest disagreement first")
             ax.fill_between(xs, vals.min(1), vals.max(1), color=colour, alpha=0.2)
-        ax.set_yscale("log")
-        ax.set_xlabel("labels given")
+        if key.endswith("_mse"):
+            ax.set_yscale("log")
+        ax.set_xlabel("labels given" if args.feedback == "returns" else "comparisons given")
         ax.set_title(f"Key: test {key.replace('_', ' ')}")
     axes[0].legend(fontsize=8)
     fig.tight_layout()

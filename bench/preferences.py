@@ -90,7 +90,7 @@ def run(job: tuple) -> dict:
     seconds = time.perf_counter() - t0
     mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
     on_test, on_held = evaluate(mean, ds.subset(test)), evaluate(mean, held)
-    keep = ("preference_accuracy", "reward_correlation", "return_mse", "reward_mse")
+    keep = ("preference_accuracy", "reward_correlation", "reward_correlation_centred", "return_mse", "reward_mse")
     res = {"task": task, "arch": arch, "teacher": teacher, "teacher_knobs": TEACHERS[teacher], "n": n,
            "seed": r, "data_seed": r, "weight_seeds": seeds, "feedback": feedback,
            "comparisons": 0 if ds.preferences is None else len(ds.preferences),
@@ -160,7 +160,7 @@ def rl_report(out: Path, results: list) -> str:
 
 
 def _cell(runs: list, key: str, worst=min) -> str:
-    values = [r["held"][key] for r in runs]
+    values = [r["held"].get(key, float("nan")) for r in runs]
     if not values or any(v != v for v in values):
         return f"{'–':>15s}"
     return f"{np.mean(values):6.3f} [{worst(values):6.3f}]"
@@ -170,10 +170,11 @@ def report(out: Path) -> str:
     runs = [json.loads(p.read_text()) for p in sorted(out.glob("*_s*.json"))]
     lines = [f"# {out.relative_to(ROOT)}: held-out ({HELD_OUT_N} episodes of data seed {HELD_OUT_SEED}) "
              "preference accuracy (all pairs with different true returns) and reward correlation "
-             "(Pearson r, per step); mean [worst] over seeds; teacher perfect: beta = inf; noisy: "
-             "beta = 1, mistake 0.1; returns: n return labels instead of n comparisons",
+             "(Pearson r, per step; centred: after removing each step index's mean over the episodes, "
+             "the part comparisons can identify); mean [worst] over seeds; teacher perfect: beta = inf; "
+             "noisy: beta = 1, mistake 0.1; returns: n return labels instead of n comparisons",
              f"{'task':8s} {'arch':12s} {'teacher':8s} {'n':>5s} {'seeds':>5s} {'pref. accuracy':>15s} "
-             f"{'reward corr.':>15s} {'s/run':>6s}"]
+             f"{'reward corr.':>15s} {'centred corr.':>15s} {'s/run':>6s}"]
     key = lambda r: (TASKS.index(r["task"]), ARCHS.index(r["arch"]), list(TEACHERS).index(r["teacher"]), r["n"])
     groups: dict = {}
     for r in sorted(runs, key=key):
@@ -182,7 +183,8 @@ def report(out: Path) -> str:
         r0 = cell[0]
         lines.append(f"{r0['task']:8s} {r0['arch']:12s} {r0['teacher']:8s} {r0['n']:5d} "
                      f"{','.join(str(r['seed']) for r in cell):>5s} {_cell(cell, 'preference_accuracy')} "
-                     f"{_cell(cell, 'reward_correlation')} {np.mean([r['seconds'] for r in cell]):6.0f}")
+                     f"{_cell(cell, 'reward_correlation')} {_cell(cell, 'reward_correlation_centred')} "
+                     f"{np.mean([r['seconds'] for r in cell]):6.0f}")
     return "\n".join(lines)
 
 
@@ -196,20 +198,20 @@ def plot(out: Path) -> Path | None:
     tasks = [t for t in TASKS if any(r["task"] == t for r in runs)]
     if not tasks:
         return None
-    fig, axes = plt.subplots(2, len(tasks), figsize=(4.2 * len(tasks), 6.5), squeeze=False)
+    fig, axes = plt.subplots(2, len(tasks), figsize=(4.2 * len(tasks), 6.5), squeeze=False)  # rows: accuracy, centred corr.
     styles = {("csc_lstm", "perfect"): ("C0", "-"), ("csc_lstm", "noisy"): ("C0", "--"),
               ("instance_nn", "perfect"): ("C3", "-"), ("instance_nn", "noisy"): ("C3", "--"),
               ("csc_lstm", "returns"): ("0.4", ":"), ("instance_nn", "returns"): ("C1", ":")}
     for col, task in enumerate(tasks):
-        for row, metric in enumerate(("preference_accuracy", "reward_correlation")):
+        for row, metric in enumerate(("preference_accuracy", "reward_correlation_centred")):
             ax = axes[row, col]
             for (arch, teacher), (colour, line) in styles.items():
                 cell = [r for r in runs if (r["task"], r["arch"], r["teacher"]) == (task, arch, teacher)]
                 ns = sorted({r["n"] for r in cell})
                 if not ns:
                     continue
-                worst = [min(r["held"][metric] for r in cell if r["n"] == n) for n in ns]
-                mean = [np.mean([r["held"][metric] for r in cell if r["n"] == n]) for n in ns]
+                worst = [min(r["held"].get(metric, np.nan) for r in cell if r["n"] == n) for n in ns]
+                mean = [np.mean([r["held"].get(metric, np.nan) for r in cell if r["n"] == n]) for n in ns]
                 ax.plot(ns, worst, line, color=colour, marker="o", label=f"{arch}, {teacher} (worst seed)")
                 ax.plot(ns, mean, line, color=colour, alpha=0.35)
             ax.set_xscale("log")

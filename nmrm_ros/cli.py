@@ -778,7 +778,8 @@ def _metrics_line(m: dict) -> str:
     if m.get("comparisons"):
         parts.append(f"comparison accuracy {m['comparison_accuracy']:.3f} ({m['comparisons']} comparisons)")
     if m.get("reward_correlation") == m.get("reward_correlation"):
-        parts.append(f"reward correlation {m['reward_correlation']:.3f}")
+        parts.append(f"reward correlation {m['reward_correlation']:.3f} "
+                     f"(centred per step index {m['reward_correlation_centred']:.3f})")
     return ", ".join(parts) + f" ({m['bags']} bags)"
 
 

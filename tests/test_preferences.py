@@ -210,3 +210,14 @@ def test_labeller_oracle_publishes_comparisons_over_real_topics(ros_domain):
         want = np.sign(truth[m.episode_a] - truth[m.episode_b])
         assert m.preference == (0 if want == 0 else want) or (want == 0 and m.preference == -1), m
     assert code == 0 and "11 comparison(s)" in out, out
+
+
+def test_centred_correlation_ignores_a_function_of_time_added_to_every_bag():
+    from nmrm_ros.mil.evaluation import centred, correlation
+
+    rng = np.random.default_rng(0)
+    true = rng.normal(size=(50, 10))
+    step = np.tile(np.arange(10), 50)
+    shifted = true + np.linspace(-30, 30, 10)[None, :]  # g(t): invisible to comparisons of equal-length bags
+    assert correlation(shifted.ravel(), true.ravel()) < 0.2
+    assert correlation(centred(shifted.ravel(), step), centred(true.ravel(), step)) == pytest.approx(1.0)

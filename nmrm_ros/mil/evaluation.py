@@ -12,8 +12,12 @@ Metrics that do not depend on the returns' offset and scale (what preferences fi
 preference accuracy: over all pairs of bags whose return labels differ, the fraction the model
 orders as the labels do (a tie in prediction counts one half); comparison accuracy: the same over
 the dataset's labelled comparisons that are not "equal"; reward correlation: Pearson's r between
-the predicted r'_t and the oracle's r_t over all real steps. Bags without a return label (NaN)
-are left out of the return MSE and the preference accuracy.
+the predicted r'_t and the oracle's r_t over all real steps; reward correlation, centred: the
+same after subtracting from both each step index's mean over the bags. When every bag has the
+same length, adding any function of time g(t) to every bag's rewards changes no return
+difference, so comparisons cannot fix it (returns fix it up to sum_t g(t) = 0); the centred
+correlation ignores it. Bags without a return label (NaN) are left out of the return MSE and the
+preference accuracy.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
     model.eval()
     bags = BagTensors(ds)
     ret_se, rew_se, steps, spread = 0.0, 0.0, 0, 0.0
-    predicted, step_pred, step_true = [], [], []
+    predicted, step_pred, step_true, step_index = [], [], [], []
     err_by_t = torch.zeros(bags.x.shape[1], dtype=torch.float64)  # summed errors per step index
     n_by_t = torch.zeros(bags.x.shape[1], dtype=torch.float64)
     for start in range(0, len(bags), batch_size):
@@ -52,6 +56,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
         mask = torch.arange(x.shape[1])[None, :] < lengths[:, None]
         step_pred.append(pred_rewards[mask].double().numpy())
         step_true.append(bags.rewards[index, : x.shape[1]][mask].double().numpy())
+        step_index.append(torch.arange(x.shape[1]).expand_as(mask)[mask].numpy())
         true_rewards = bags.rewards[index, : x.shape[1]]
         err = (pred_rewards - true_rewards) * mask
         rew_se += float((err ** 2).sum())
@@ -68,8 +73,9 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
         predicted[labelled], ds.returns[labelled])
     if ds.preferences is not None and len(ds.preferences):
         metrics["comparison_accuracy"], metrics["comparisons"] = comparison_accuracy(predicted, ds.preferences)
-    metrics["reward_correlation"] = correlation(np.concatenate(step_pred) if step_pred else np.zeros(0),
-                                                np.concatenate(step_true) if step_true else np.zeros(0))
+    flat = [np.concatenate(x) if x else np.zeros(0) for x in (step_pred, step_true, step_index)]
+    metrics["reward_correlation"] = correlation(flat[0], flat[1])
+    metrics["reward_correlation_centred"] = correlation(*(centred(v, flat[2]) for v in flat[:2]))
     if ensemble:
         metrics["return_std"] = spread / max(len(bags), 1)
     scale = float(model.return_scale)
@@ -109,8 +115,17 @@ def comparison_accuracy(predicted: np.ndarray, preferences: np.ndarray) -> tuple
     return float(score.mean()), int(len(decided))
 
 
+def centred(values: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """values minus the mean of the values at the same step index; values, step: (n,)."""
+    if len(values) == 0:
+        return values
+    sums = np.bincount(step, weights=values)
+    counts = np.bincount(step)
+    return values - (sums / np.maximum(counts, 1))[step]
+
+
 def correlation(x: np.ndarray, y: np.ndarray) -> float:
     """Pearson's r of two equal-length arrays; NaN if either is constant or empty."""
-    if len(x) < 2 or np.std(x) == 0 or np.std(y) == 0:
+    if len(x) < 2 or np.std(x) < 1e-12 or np.std(y) < 1e-12:
         return float("nan")
     return float(np.corrcoef(x, y)[0, 1])

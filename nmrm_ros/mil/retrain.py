@@ -3,7 +3,7 @@
 The trainer node runs this in a child process (`python -m nmrm_ros.mil.retrain ...`), so that
 training never blocks the node's topics. The split suits a handful of labels: every fifth bag
 (in a seeded order; at least one) validates, the rest train, and each member trains on its own
-bootstrap resample of them (the members' disagreement is then a useful uncertainty for choosing
+bootstrap resample of them (comparisons: on all of them, from its own seed) (the members' disagreement is then a useful uncertainty for choosing
 what to ask a person next). There is no test split: every label is precious, and the person's
 labels are what the model is checked against.
 
@@ -30,14 +30,16 @@ from .models import model_config
 from .training import load_train_config, train_ensemble
 
 
-def retrain_splits(n: int, members: int, seed: int) -> list:
+def retrain_splits(n: int, members: int, seed: int, bootstrap: bool = True) -> list:
     """K (train, validation) index pairs: one validation fifth (>= 1 bag), members' training sets
-    bootstrapped from the rest (seed + m). Needs n >= 2."""
+    bootstrapped from the rest (seed + m; bootstrap=False: the rest, for every member). Needs n >= 2."""
     if n < 2:
         raise ValueError(f"retraining needs at least 2 labelled episodes, got {n}")
     order = np.random.default_rng(seed).permutation(n)
     n_val = max(1, n // 5)
     val, train = np.sort(order[:n_val]), np.sort(order[n_val:])
+    if not bootstrap:
+        return [(train, val)] * members
     return [(np.sort(np.random.default_rng(seed + m).choice(train, len(train))), val)
             for m in range(members)]
 
@@ -72,7 +74,9 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     cfg = load_train_config(ds.task, max_epochs=max_epochs, seed=seed, threads=threads, feedback=feedback)
     config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
                           hidden_size=cfg.hidden_size)
-    splits = retrain_splits(len(ds), members, seed)
+    # comparisons: no bootstrap of the episodes (a comparison needs both of its episodes, so a
+    # resample would drop about 60% of them); the members differ by their seeds
+    splits = retrain_splits(len(ds), members, seed, bootstrap=feedback == "returns")
     ens, start = _warm_start(init, ds.task, config, members)
     seeds = [seed + m for m in range(members)]
     fresh = ens is None
@@ -96,7 +100,7 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
         ens, out, task=ds.task, seed=seed, split_seed=seed, train_config=cfg.to_dict(),
         data={"source": "live labels", "n": len(ds), "meta": ds.meta},
         ensemble={"members": members, "seeds": seeds, "split_seeds": [seed] * members,
-                  "split_mode": "bootstrap", "serving_member": serving},
+                  "split_mode": "bootstrap" if feedback == "returns" else "shared", "serving_member": serving},
         metrics={"val": val_metrics, "member_val_loss": member_val, **summary})
     summary["checkpoint"] = str(path)
     return summary

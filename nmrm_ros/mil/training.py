@@ -333,7 +333,7 @@ def comparison_split(preferences: np.ndarray | None, train: np.ndarray, val: np.
     """(training rows, validation rows) of `preferences` (m, 3) for a member trained on the
     trajectories `train` and validated on `val`: comparisons of two trajectories of train ∪ val
     (one with a test trajectory is never used), a seeded ninth of them (a tenth of all when no
-    trajectory is held out) validating, the rest training."""
+    trajectory is held out; at least one of two or more) validating, the rest training."""
     if preferences is None or len(preferences) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     known = np.zeros(int(max(preferences[:, :2].max() + 1, np.max(train, initial=0) + 1,
@@ -343,7 +343,7 @@ def comparison_split(preferences: np.ndarray | None, train: np.ndarray, val: np.
     a, b = preferences[:, 0].astype(np.int64), preferences[:, 1].astype(np.int64)
     usable = np.flatnonzero(known[a] & known[b])
     order = np.random.default_rng([int(seed), 0xC0]).permutation(usable)
-    n_val = int(round(len(order) / 9))
+    n_val = max(1, int(round(len(order) / 9))) if len(order) >= 2 else 0
     return np.sort(order[n_val:]), np.sort(order[:n_val])
 
 

@@ -85,6 +85,8 @@ PARAMETERS = {
     "exit_with_upstream": Param(False, "exit when the observation topic's publishers are gone"),
     "feedback": Param("returns", "what the page asks: returns | preferences (pairwise comparisons) | both"),
     "comparisons_per_episode": Param(3, "feedback preferences|both: answered comparisons each episode gets", 1),
+    "pair_window": Param(30, "feedback preferences|both: pairs are chosen among this many oldest episodes "
+                             "that need comparisons", 2),
     "frames_mb": Param(200, "rendered frames (nmrm/frame) kept for the page, in MB (oldest episodes' dropped)", 1),
 }
 
@@ -117,7 +119,8 @@ class LabellerWebNode(Node):
         tokens = self._tokens(p, people, bool(team))
         self.queue = LabelQueue(self.task, max_episodes=int(p["max_episodes"]), people=tuple(people),
                                 assignment=p["assignment"], take_s=float(p["take_s"]),
-                                comparisons_per_episode=int(p["comparisons_per_episode"]))
+                                comparisons_per_episode=int(p["comparisons_per_episode"]),
+                                pair_window=int(p["pair_window"]))
         self.gold_every = int(p["gold_every"])
         self.gold_returns: dict = {}
         self.finished = 0
