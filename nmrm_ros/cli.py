@@ -87,11 +87,11 @@ FEEDBACK_HELP = ("the labels written: returns (one per episode) | preferences (p
 FEEDBACK_OPT = typer.Option("returns", help=FEEDBACK_HELP)
 PAIRS_OPT = typer.Option(None, min=1, help="with --feedback preferences|both: comparisons to ask "
                                            "(default: as many as episodes)")
-BETA_OPT = typer.Option(float("inf"), help="teacher rationality: P(a better) = sigmoid(beta (R_a - R_b)); "
+BETA_OPT = typer.Option(float("inf"), min=0.0, help="teacher rationality: P(a better) = sigmoid(beta (R_a - R_b)); "
                                          "inf: always the better one")
 MISTAKE_OPT = typer.Option(0.0, min=0.0, max=1.0, help="teacher: probability of flipping an answer")
 EQUAL_OPT = typer.Option(0.0, min=0.0, help="teacher: returns this close are 'equal'")
-GAMMA_OPT = typer.Option(1.0, help="teacher myopia in (0, 1]: step t weighs gamma^(len - 1 - t)")
+GAMMA_OPT = typer.Option(1.0, min=0.0, max=1.0, help="teacher myopia in (0, 1]: step t weighs gamma^(len - 1 - t)")
 SKIP_OPT = typer.Option(float("-inf"), help="teacher: no answer when both returns are below this")
 
 
@@ -525,7 +525,8 @@ def train(
         typer.echo(f"warning: only {len(ds)} trajectories; the validation and test sets have about "
                    f"{len(ds) // 10} each, so the figures below are noise", err=True)
     compared = 0 if ds.preferences is None else len(ds.preferences)
-    typer.echo(f"training {arch} on {ds.task} from {cfg.feedback}: {len(ds)} trajectories"
+    typer.echo(f"training {arch} on {ds.task}" + (f" from {cfg.feedback}" if cfg.feedback != "returns" else "")
+               + f": {len(ds)} trajectories"
                + (f", {compared} comparisons" if compared else "") + f" ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))

@@ -33,6 +33,15 @@ ROOT = Path(__file__).resolve().parents[1]
     ("launch {root}/launch_scripts/collect.launch.yaml nope:=1", "unknown launch argument(s) ['nope']"),
     ("launch {root}/launch_scripts/collect.launch.yaml task=key", "launch arguments are NAME:=VALUE"),
     ("launch {tmp}/file", "expected a top-level 'launch:' list"),
+    ("dataset screen --task key --n 50 --feedback stars", "--feedback must be returns, preferences or both"),
+    ("dataset screen --task key --n 50 --pairs 10", "--pairs needs --feedback preferences or both"),
+    ("dataset screen --task key --n 50 --feedback preferences --beta 0", "beta must be > 0"),
+    ("dataset screen --task key --n 50 --feedback preferences --beta -1", "--beta"),
+    ("dataset generate --task key --episodes 5 --feedback preferences --skip nan --out {tmp}/x", "skip must be a number"),
+    ("dataset screen --task key --n 50 --feedback preferences --gamma 0", "gamma must be in (0, 1]"),
+    ("dataset screen --task key --n 50 --feedback preferences --pairs 0", "--pairs"),
+    ("train --task key --n 50 --feedback stars", "feedback must be returns or preferences or both"),
+    ("train --task key --n 50 --feedback preferences --out {tmp}/m", "needs preferences"),
 ])
 def test_a_wrong_invocation_is_a_one_line_error(tmp_path, args, message):
     (tmp_path / "file").write_text("not a directory")

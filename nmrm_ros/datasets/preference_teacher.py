@@ -36,7 +36,8 @@ class SimulatedTeacher:
         """self, or a ValueError naming the first knob out of its range."""
         rules = [("beta", self.beta > 0, "> 0 (inf: a perfect teacher)"),
                  ("mistake", 0 <= self.mistake <= 1, "in [0, 1]"),
-                 ("equal", self.equal >= 0, ">= 0"), ("gamma", 0 < self.gamma <= 1, "in (0, 1]")]
+                 ("equal", self.equal >= 0, ">= 0"), ("gamma", 0 < self.gamma <= 1, "in (0, 1]"),
+                 ("skip", not math.isnan(self.skip), "a number (-inf: never skip)")]
         for name, ok, allowed in rules:
             if not ok or math.isnan(getattr(self, name)):
                 raise ValueError(f"teacher setting {name} must be {allowed}, got {getattr(self, name)!r}")
