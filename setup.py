@@ -27,6 +27,8 @@ EXECUTABLES = {
     "recorder": "nmrm_ros.nodes.recorder_node:main",
     "replay": "nmrm_ros.nodes.replay_node:main",
     "trainer": "nmrm_ros.nodes.trainer_node:main",
+    "observation_bridge": "nmrm_ros.nodes.observation_bridge_node:main",
+    "action_bridge": "nmrm_ros.nodes.action_bridge_node:main",
 }
 
 SHIM = """#!/bin/sh

@@ -1,0 +1,226 @@
+"""observation_bridge: a robot's standard topics in, the graph's observation stream out.
+
+Reads the `observation:` and `episode:` sections of a robot spec (`spec`, a YAML file;
+`nmrm_ros.ros.robot_spec`): it subscribes to each input topic (nav_msgs/Odometry,
+geometry_msgs/PoseStamped, sensor_msgs/JointState, sensor_msgs/LaserScan, std_msgs/Float32MultiArray
+or any message whose fields are numbers), keeps the latest value of each, and `rate` times a
+second publishes one EnvObservation of their fields in order on `nmrm/observation`, for `task`.
+A tick with an input older than `stale_after` s (or never seen) publishes nothing and is counted
+(a warning every 5 s says which input); a message whose fields cannot be read (a missing joint, a
+NaN) is dropped and counted the same way. Time is the node's clock, so `use_sim_time` is honoured.
+
+Episodes: with `auto_start` (default) one starts at once and the next right after one ends;
+else by the `~/start_episode` service (std_srvs/Trigger). An episode ends at `max_steps`
+(truncated), when the state leaves the spec's box (terminated), or by `~/end_episode` (truncated,
+on the current state). Between episodes the spec's `reset_service` (std_srvs/Empty) is called if
+given, and the next episode starts once it answered (or `reset_timeout` s passed: a warning).
+`episodes` > 0 stops after that many (the node then exits 0). Everything downstream — reward
+model, labellers, recorder, trainer, agent — sees episodes exactly as from env_sim.
+"""
+
+from __future__ import annotations
+
+import time
+
+from rclpy.node import Node
+
+from nmrm_msgs.msg import EnvObservation
+
+from ..ros.messages import to_float_list
+from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
+from ..ros.topics import OBSERVATION, STEP_QOS
+
+PARAMETERS = {
+    "spec": Param("", "robot spec YAML (observation:, episode:, action: sections; see nmrm_ros.ros.robot_spec)"),
+    "task": Param("", "task whose observations these are (its state size must match the spec's fields)"),
+    "episodes": Param(0, "stop after this many episodes (0 = for ever)", 0),
+    "first_episode": Param(0, "id of the first episode", 0),
+    "auto_start": Param(True, "start episodes by themselves (false: by the ~/start_episode service)"),
+    "reset_timeout": Param(10.0, "seconds to wait for the reset service between episodes", 0.0),
+}
+
+WARN_EVERY_S = 5.0
+
+
+class ObservationBridgeNode(Node):
+    def __init__(self) -> None:
+        self.exit_code = None
+        super().__init__("observation_bridge")
+        p = declare_parameters(self, PARAMETERS)
+        from std_srvs.srv import Empty, Trigger
+
+        from ..ros.field_paths import message_class
+        from ..ros.robot_spec import load_robot_spec
+
+        if not p["spec"]:
+            raise NodeError("spec is required: a robot spec YAML file (see nmrm_ros.ros.robot_spec)")
+        if not p["task"]:
+            raise NodeError("task is required: the task whose observations the robot makes")
+        try:
+            self.spec = load_robot_spec(p["spec"])
+        except ValueError as exc:
+            raise NodeError(str(exc)) from None
+        self.info = require_task(p["task"])
+        self.task = p["task"]
+        self.expected = self.info.state_size
+        self.episodes = int(p["episodes"])
+        self.auto_start = bool(p["auto_start"])
+        self.reset_timeout = float(p["reset_timeout"])
+        self.latest: list = [None] * len(self.spec.inputs)  # (values, receive time in ns)
+        self.dropped = [0] * len(self.spec.inputs)
+        self.stale_ticks = 0
+        self.warned_at = 0.0
+        self.episode = int(p["first_episode"]) - 1
+        self.done_episodes = 0
+        self.step = 0
+        self.running = False
+        self.resetting_since = None
+        self.reset_future = None
+        self.wrong_size_warned = False  # the state size is checked on the first full sample
+        self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
+        for i, inp in enumerate(self.spec.inputs):
+            self.create_subscription(message_class(inp.type_name), inp.topic,
+                                     lambda msg, i=i: self.on_input(i, msg), _qos(inp.qos))
+        self.create_service(Trigger, "~/start_episode", self.on_start)
+        self.create_service(Trigger, "~/end_episode", self.on_end)
+        self.reset_client = self.create_client(Empty, self.spec.reset_service) if self.spec.reset_service else None
+        self.create_timer(1.0 / self.spec.rate, self.on_tick)
+        self.get_logger().info(
+            f"task {self.task}: {len(self.spec.inputs)} input(s) "
+            f"({', '.join(i.topic for i in self.spec.inputs)}) at {self.spec.rate:g} Hz, stale after "
+            f"{self.spec.stale_after:g} s; episodes {'start by themselves' if self.auto_start else 'by ~/start_episode'}"
+            f", end at {self.spec.max_steps or 'no'} step limit{', leaving the box' if self.spec.box_dims else ''}"
+            f", by ~/end_episode")
+        if self.auto_start:
+            self.begin()
+
+    # -- inputs ------------------------------------------------------------------------------------
+    def on_input(self, i: int, msg) -> None:
+        try:
+            values = self.spec.inputs[i].read(msg)
+        except ValueError as exc:
+            self.dropped[i] += 1
+            self._warn(f"{self.spec.inputs[i].topic}: message dropped ({self.dropped[i]} so far): {exc}")
+            return
+        self.latest[i] = (values, self.get_clock().now().nanoseconds)
+
+    def _warn(self, text: str) -> None:
+        now = time.monotonic()
+        if now - self.warned_at >= WARN_EVERY_S:
+            self.warned_at = now
+            self.get_logger().warning(text)
+
+    def sample(self) -> list | None:
+        """The state of now (latest value of every input), or None if one is stale or missing."""
+        now = self.get_clock().now().nanoseconds
+        state = []
+        for inp, got in zip(self.spec.inputs, self.latest):
+            if got is None or (now - got[1]) / 1e9 > self.spec.stale_after:
+                self.stale_ticks += 1
+                age = "never received" if got is None else f"{(now - got[1]) / 1e9:.2f} s old"
+                self._warn(f"{inp.topic} is stale ({age}); {self.stale_ticks} tick(s) skipped so far")
+                return None
+            state += got[0]
+        if len(state) != self.expected:
+            if not self.wrong_size_warned:
+                self.get_logger().error(f"the spec's fields make {len(state)} values, task {self.task} has "
+                                        f"state size {self.expected}: nothing published")
+                self.wrong_size_warned = True
+            return None
+        return state
+
+    # -- episodes ----------------------------------------------------------------------------------
+    def begin(self) -> None:
+        self.episode += 1
+        self.step = 0
+        self.running = True
+
+    def finish_episode(self, state: list, terminated: bool, truncated: bool) -> None:
+        self.publish(state, terminated, truncated)
+        self.running = False
+        self.done_episodes += 1
+        self.get_logger().info(f"episode {self.episode}: {self.step} steps, "
+                               f"{'left the box' if terminated else 'truncated'}")
+        if self.episodes and self.done_episodes >= self.episodes:
+            self.exit_code = 0
+            return
+        if self.reset_client is not None:
+            from std_srvs.srv import Empty
+
+            self.resetting_since = time.monotonic()
+            self.reset_future = self.reset_client.call_async(Empty.Request()) if self.reset_client.service_is_ready() else None
+        elif self.auto_start:
+            self.begin()
+
+    def publish(self, state: list, terminated: bool = False, truncated: bool = False) -> None:
+        msg = EnvObservation(task=self.task, episode=self.episode, step=self.step, state=to_float_list(state),
+                             terminated=terminated, truncated=truncated)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self.task
+        self.pub.publish(msg)
+
+    def on_tick(self) -> None:
+        if self.resetting_since is not None:
+            answered = self.reset_future is not None and self.reset_future.done()
+            if answered or time.monotonic() - self.resetting_since > self.reset_timeout:
+                if not answered:
+                    self.get_logger().warning(f"{self.spec.reset_service} did not answer in {self.reset_timeout:g} s")
+                self.resetting_since = self.reset_future = None
+                if self.auto_start:
+                    self.begin()
+            return
+        if not self.running:
+            return
+        state = self.sample()
+        if state is None:
+            return
+        if self.spec.max_steps and self.step >= self.spec.max_steps:
+            self.finish_episode(state, False, True)
+        elif self.step > 0 and self.spec.left_box(state):
+            self.finish_episode(state, True, False)
+        else:
+            self.publish(state)
+            self.step += 1
+
+    def on_start(self, request, response):
+        if self.running:
+            response.success, response.message = False, f"episode {self.episode} is running"
+        elif self.resetting_since is not None:
+            response.success, response.message = False, "resetting the robot"
+        elif self.exit_code is not None:
+            response.success, response.message = False, "all episodes done"
+        else:
+            self.begin()
+            response.success, response.message = True, f"episode {self.episode} started"
+        return response
+
+    def on_end(self, request, response):
+        if not self.running or self.step == 0:
+            response.success, response.message = False, "no episode with a step to end"
+            return response
+        state = self.sample()
+        if state is None:
+            response.success, response.message = False, "an input is stale: cannot publish the final observation"
+            return response
+        ended = self.episode
+        self.finish_episode(state, False, True)
+        response.success, response.message = True, f"episode {ended} ended at step {self.step}"
+        return response
+
+    def close(self) -> None:
+        self.get_logger().info(f"{self.done_episodes} episode(s); {self.stale_ticks} stale tick(s); dropped "
+                               + ", ".join(f"{i.topic} {d}" for i, d in zip(self.spec.inputs, self.dropped)))
+
+
+def _qos(name: str):
+    from rclpy.qos import qos_profile_sensor_data
+
+    return qos_profile_sensor_data if name == "sensor_data" else STEP_QOS
+
+
+def main(args=None) -> int:
+    return run_node(ObservationBridgeNode, "observation_bridge", __doc__.strip().splitlines()[0], PARAMETERS, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

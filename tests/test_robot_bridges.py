@@ -1,0 +1,240 @@
+"""A robot in standard messages: field paths, the robot spec, and the two bridges as real node
+processes over real topics (Odometry and LaserScan in, EnvObservation out; AgentAction in, Twist
+out, with the safe stop)."""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from nmrm_ros.ros.field_paths import compile_fields, sectors, yaw
+from nmrm_ros.ros.robot_spec import parse_robot_spec
+
+SPEC = """
+observation:
+  rate: 20.0
+  stale_after: 0.3
+  inputs:
+    - {topic: /odom, type: nav_msgs/msg/Odometry, qos: sensor_data, fields: [pose.pose.position.x, pose.pose.position.y]}
+episode:
+  max_steps: 10
+  box: {dims: [0], low: [-1.0], high: [1.0]}
+action:
+  topic: /cmd_vel
+  rate: 20.0
+  timeout: 0.3
+  discrete:
+    0: {linear.x: 0.2}
+    1: {angular.z: 1.0}
+"""
+
+
+# -- core (no ROS graph) -------------------------------------------------------------------------
+def test_field_paths_read_the_standard_messages():
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState, LaserScan
+    from std_msgs.msg import Float32MultiArray
+
+    odom = Odometry()
+    odom.pose.pose.position.x, odom.pose.pose.position.y = 1.5, -2.0
+    odom.pose.pose.orientation.z, odom.pose.pose.orientation.w = math.sin(0.3), math.cos(0.3)  # yaw 0.6
+    read = compile_fields("nav_msgs/msg/Odometry", ["pose.pose.position.x", "pose.pose.position.y",
+                                                    "yaw(pose.pose.orientation)"])
+    assert read(odom) == pytest.approx([1.5, -2.0, 0.6])
+    pose = PoseStamped()
+    pose.pose.orientation.w = 1.0
+    assert compile_fields("geometry_msgs/PoseStamped", ["yaw(pose.orientation)"])(pose) == [0.0]
+    joints = JointState(name=["left", "right"], position=[0.1, 0.2], velocity=[3.0, 4.0])
+    assert compile_fields("sensor_msgs/msg/JointState", ["position[right]", "velocity[0]"])(joints) == [0.2, 3.0]
+    scan = LaserScan(ranges=[1.0, float("inf"), 3.0, 0.5, float("nan"), 2.0, 4.0, 4.0], range_max=10.0)
+    assert compile_fields("sensor_msgs/msg/LaserScan", ["ranges"], downsample=4)(scan) == [1.0, 0.5, 2.0, 4.0]
+    arr = Float32MultiArray(data=[7.0, 8.0])
+    assert compile_fields("std_msgs/msg/Float32MultiArray", ["data[1]", "data"])(arr) == [8.0, 7.0, 8.0]
+
+
+def test_field_path_mistakes_are_one_line_errors():
+    from sensor_msgs.msg import JointState
+
+    with pytest.raises(ValueError, match="has no field 'positio'"):
+        compile_fields("nav_msgs/msg/Odometry", ["pose.pose.positio.x"])
+    with pytest.raises(ValueError, match="unknown message type"):
+        compile_fields("nav_msgs/msg/Odometri", ["x"])
+    with pytest.raises(ValueError, match="cannot read field path"):
+        compile_fields("nav_msgs/msg/Odometry", ["pose..x["])
+    read = compile_fields("sensor_msgs/msg/JointState", ["position[elbow]"])
+    with pytest.raises(ValueError, match="no joint 'elbow'"):
+        read(JointState(name=["left"], position=[0.0]))
+    read = compile_fields("sensor_msgs/msg/JointState", ["position[0]"])
+    with pytest.raises(ValueError, match="not finite"):
+        read(JointState(name=["left"], position=[float("nan")]))
+    with pytest.raises(ValueError, match="cannot make 4 sectors"):
+        sectors([1.0, 2.0], 4, 10.0)
+    assert yaw(type("Q", (), {"x": 0.0, "y": 0.0, "z": 1.0, "w": 0.0})()) == pytest.approx(math.pi)
+
+
+@pytest.mark.parametrize("text,message", [
+    ("observation: {inputs: []}", "observation.inputs must be a non-empty list"),
+    ("observation: {inputs: [{topic: /o, type: nav_msgs/msg/Odometry}]}", r"observation.inputs\[0\].fields is missing"),
+    ("observation: {inputs: [{topic: /o, type: nav_msgs/msg/Odometry, fields: [x.y]}]}", "has no field 'x'"),
+    ("observation: {inputs: [{topic: /o, type: nav_msgs/msg/Odometry, fields: [pose.pose.position.x], qos: best}]}",
+     "qos must be one of"),
+    ("observation: {rate: 0, inputs: [{topic: /o, type: nav_msgs/msg/Odometry, fields: [pose.pose.position.x]}]}",
+     "observation.rate must be > 0"),
+    ("observation: {inputs: [{topic: /o, type: nav_msgs/msg/Odometry, fields: [pose.pose.position.x]}]}\n"
+     "action: {discrete: {0: {linear.w: 1}}}", "are not twist fields"),
+    ("observation: {inputs: [{topic: /o, type: nav_msgs/msg/Odometry, fields: [pose.pose.position.x]}]}\n"
+     "action: {continuous: {fields: [linear.x], low: [1], high: [0]}}", "every low must be <= its high"),
+    ("observation: {inputs: [{topic: /o, type: nav_msgs/msg/Odometry, fields: [pose.pose.position.x]}]}\n"
+     "episode: {max_steps: -1}", "episode.max_steps must be a whole number"),
+    ("robot: 1", "unknown section"),
+    ("[1, 2", "is not YAML"),
+])
+def test_robot_spec_mistakes_name_the_key(text, message):
+    with pytest.raises(ValueError, match=message):
+        parse_robot_spec(text)
+
+
+def test_the_action_table_and_the_limits():
+    spec = parse_robot_spec(SPEC)
+    assert spec.twist([1.0]) == {"angular.z": 1.0}
+    with pytest.raises(ValueError, match="not one of"):
+        spec.twist([2.0])
+    cont = parse_robot_spec(SPEC.split("action:")[0] + "action: {continuous: {fields: [linear.x, angular.z], "
+                                                       "low: [-0.2, -1.0], high: [0.2, 1.0]}}")
+    assert cont.twist([5.0, -0.5]) == {"linear.x": 0.2, "angular.z": -0.5}
+    assert spec.left_box([1.5, 0.0]) and not spec.left_box([0.5, 9.0])
+
+
+# -- the bridges as processes --------------------------------------------------------------------
+def _odometry(x: float, y: float):
+    from nav_msgs.msg import Odometry
+
+    msg = Odometry()
+    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+    return msg
+
+
+def test_observation_bridge_makes_episodes_from_odometry(ros_domain, tmp_path):
+    """Odometry at 50 Hz -> observations at 20 Hz: episodes of 10 steps (truncated) then one that
+    leaves the box (terminated); with the odometry gone, nothing is published and the stale ticks
+    are counted; ~/end_episode ends an episode by service."""
+    from rclpy.qos import qos_profile_sensor_data
+    from std_srvs.srv import Trigger
+
+    from graph_helpers import Capture, finish, start
+    from nav_msgs.msg import Odometry
+
+    (tmp_path / "robot.yaml").write_text(SPEC)
+    capture = Capture()
+    bridge = start("observation_bridge", spec=tmp_path / "robot.yaml", task="key", episodes=3)
+    try:
+        odom = capture.node.create_publisher(Odometry, "/odom", qos_profile_sensor_data)
+        assert capture.spin_until(lambda: odom.get_subscription_count() >= 1, 30)
+        x = 0.0
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not any(m.terminated for m in capture.msgs["observation"]):
+            eps = {m.episode for m in capture.msgs["observation"]}
+            if len([e for e in eps if any(m.truncated and m.episode == e for m in capture.msgs["observation"])]) >= 2:
+                x += 0.05  # after two truncated episodes, drive out of the box
+            odom.publish(_odometry(x, 0.5))
+            capture.spin_for(0.02)
+        assert capture.spin_until(lambda: bridge.poll() is not None, 30)
+        code, out = finish(bridge)
+    finally:
+        if bridge.poll() is None:
+            bridge.send_signal(signal.SIGINT)
+        capture.close()
+    obs = capture.msgs["observation"]
+    by_episode = {}
+    for m in obs:
+        by_episode.setdefault(m.episode, []).append(m)
+    assert sorted(by_episode) == [0, 1, 2], out
+    for e in (0, 1):
+        steps = [m.step for m in by_episode[e]]
+        assert steps == list(range(11)) and by_episode[e][-1].truncated and not by_episode[e][-1].terminated
+        assert all(m.task == "key" and list(m.state) == pytest.approx([0.0, 0.5]) for m in by_episode[e])
+    assert by_episode[2][-1].terminated and by_episode[2][-1].state[0] >= 1.0  # float32 of just over 1
+    assert code == 0 and "3 episode(s)" in out, out
+
+    # stale input and episodes by service
+    capture = Capture()
+    bridge = start("observation_bridge", spec=tmp_path / "robot.yaml", task="key", auto_start=False)
+    try:
+        odom = capture.node.create_publisher(Odometry, "/odom", qos_profile_sensor_data)
+        client = capture.node.create_client(Trigger, "/observation_bridge/start_episode")
+        ender = capture.node.create_client(Trigger, "/observation_bridge/end_episode")
+        assert capture.spin_until(lambda: client.service_is_ready() and ender.service_is_ready(), 30)
+        capture.spin_for(0.5)
+        assert capture.msgs["observation"] == []  # no episode started
+
+        def call(c):
+            future = c.call_async(Trigger.Request())
+            assert capture.spin_until(future.done, 10)
+            return future.result()
+
+        assert call(client).success
+        capture.spin_for(0.5)
+        assert capture.msgs["observation"] == []  # started, but the odometry was never seen: stale
+        for _ in range(5):
+            odom.publish(_odometry(0.1, 0.2))
+            capture.spin_for(0.05)
+        assert capture.spin_until(lambda: len(capture.msgs["observation"]) >= 2, 10)
+        odom.publish(_odometry(0.1, 0.2))
+        capture.spin_for(0.02)
+        answer = call(ender)
+        assert answer.success, answer.message
+        assert capture.spin_until(lambda: capture.msgs["observation"][-1].truncated, 5)
+        assert not call(ender).success  # nothing running any more
+        bridge.send_signal(signal.SIGINT)
+        code, out = finish(bridge)
+    finally:
+        capture.close()
+    final = capture.msgs["observation"][-1]
+    assert final.episode == 0 and final.step == len(capture.msgs["observation"]) - 1
+    assert "/odom is stale (never received)" in out and code == 0, out
+
+
+def test_action_bridge_sends_twists_and_stops_safely(ros_domain, tmp_path):
+    """Action 1 -> angular.z 1.0 at the spec's rate; no action for 0.3 s -> zero twists; a final
+    observation -> a zero twist at once; an unknown index is dropped with a warning."""
+    from geometry_msgs.msg import Twist
+
+    from graph_helpers import Capture, finish, start
+    from nmrm_msgs.msg import AgentAction, EnvObservation
+    from nmrm_ros.ros.topics import ACTION, OBSERVATION
+
+    (tmp_path / "robot.yaml").write_text(SPEC)
+    capture = Capture()
+    twists: list = []
+    capture.node.create_subscription(Twist, "/cmd_vel", lambda m: twists.append((time.monotonic(), m)), 10)
+    bridge = start("action_bridge", spec=tmp_path / "robot.yaml")
+    try:
+        act = capture.publisher(AgentAction, ACTION)
+        obs = capture.publisher(EnvObservation, OBSERVATION)
+        assert capture.spin_until(lambda: act.get_subscription_count() >= 1 and obs.get_subscription_count() >= 1
+                                  and len(twists) > 0, 30)
+        sent = time.monotonic()
+        act.publish(AgentAction(episode=0, step=0, action=[1.0]))
+        assert capture.spin_until(lambda: any(m.angular.z == 1.0 for t, m in twists if t > sent), 5)
+        capture.spin_for(0.8)  # no more actions: the safe stop after 0.3 s
+        late = [m for t, m in twists if t > sent + 0.6]
+        assert late and all(m.angular.z == 0.0 and m.linear.x == 0.0 for m in late)
+        act.publish(AgentAction(episode=1, step=0, action=[0.0]))
+        assert capture.spin_until(lambda: twists[-1][1].linear.x == pytest.approx(0.2), 5)
+        ended = time.monotonic()
+        obs.publish(EnvObservation(task="key", episode=1, step=5, state=[0.0, 0.0], truncated=True))
+        assert capture.spin_until(lambda: any(t > ended and m.linear.x == 0.0 for t, m in twists), 2)
+        first_zero = min(t for t, m in twists if t > ended and m.linear.x == 0.0)
+        assert first_zero - ended < 0.3  # at once, not only at the timeout
+        act.publish(AgentAction(episode=2, step=0, action=[7.0]))
+        capture.spin_for(0.3)
+        bridge.send_signal(signal.SIGINT)
+        code, out = finish(bridge)
+    finally:
+        capture.close()
+    assert code == 0 and "action of episode 2 step 0 dropped (1 so far): action [7.0] is not one of [0, 1]" in out, out
