@@ -29,6 +29,7 @@ EXECUTABLES = {
     "trainer": "nmrm_ros.nodes.trainer_node:main",
     "observation_bridge": "nmrm_ros.nodes.observation_bridge_node:main",
     "action_bridge": "nmrm_ros.nodes.action_bridge_node:main",
+    "fake_robot": "nmrm_ros.nodes.fake_robot_node:main",
 }
 
 SHIM = """#!/bin/sh
@@ -59,6 +60,7 @@ data_files = [
     ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
     (f"share/{PACKAGE}", ["package.xml"]),
     (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
+    (f"share/{PACKAGE}/config/robots", sorted(glob("config/robots/*.yaml"))),
     (f"share/{PACKAGE}/launch_scripts", sorted(glob("launch_scripts/*"))),
 ]
 if _building_wheel():

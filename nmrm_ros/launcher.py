@@ -175,12 +175,26 @@ def parse_launch_file(path: str | Path, arguments: dict | None = None,
             else:
                 raise LaunchError(f"launch argument {name!r} has no default; give {name}:=VALUE")
         elif kind == "node":
-            nodes.append(_node(body, variables, path, params_dir))
+            if _enabled(body, variables, path):
+                nodes.append(_node({k: v for k, v in body.items() if k not in ("if", "unless")},
+                                   variables, path, params_dir))
         else:
             raise LaunchError(f"{path}: unsupported launch entry {kind!r} (supported: arg, node)")
     if arguments:
         raise LaunchError(f"unknown launch argument(s) {sorted(arguments)}; declared: {sorted(variables)}")
     return nodes
+
+
+def _enabled(body: dict, variables: dict, path: Path) -> bool:
+    """A node's `if:` / `unless:` condition, as launch evaluates it: true/1 or false/0 (any case)."""
+    enabled = True
+    for key, want in (("if", True), ("unless", False)):
+        if key in body:
+            value = substitute(str(body[key]), variables, f"node condition {key!r}").strip().lower()
+            if value not in ("true", "1", "false", "0"):
+                raise LaunchError(f"{path}: node condition {key}: {value!r} is not true, false, 1 or 0")
+            enabled = enabled and ((value in ("true", "1")) == want)
+    return enabled
 
 
 def _node(body: dict, variables: dict, path: Path, params_dir: Path) -> NodeSpec:

@@ -238,3 +238,31 @@ def test_action_bridge_sends_twists_and_stops_safely(ros_domain, tmp_path):
     finally:
         capture.close()
     assert code == 0 and "action of episode 2 step 0 dropped (1 so far): action [7.0] is not one of [0, 1]" in out, out
+
+
+def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
+    """robot_bridge.launch.yaml with the fake unicycle (a faster spec: 40 Hz, 20 steps): 10
+    episodes recorded from Odometry, each labelled by the delivery oracle, the agent's actions
+    reaching the robot as twists; the graph ends by itself; a model trains on the bag."""
+    import subprocess
+
+    from graph_helpers import executable
+    from nmrm_ros.bags.episodes import load_bag_dataset
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    spec = (root / "config" / "robots" / "fake_delivery.yaml").read_text()
+    spec = spec.replace("rate: 10.0", "rate: 40.0").replace("max_steps: 150", "max_steps: 20")
+    (tmp_path / "fast.yaml").write_text(spec)
+    res = subprocess.run([executable("nmrm"), "launch", str(root / "launch_scripts" / "robot_bridge.launch.yaml"),
+                          f"spec:={tmp_path / 'fast.yaml'}", "episodes:=10", f"out:={tmp_path / 'bag'}",
+                          "task:=nmrm_ros.robots.delivery:DeliveryEnv,max_steps=20,xy=0/1"],
+                         capture_output=True, text=True, timeout=240)
+    assert res.returncode == 0 and "all 7 node(s) exited cleanly" in res.stdout, res.stdout[-3000:] + res.stderr
+    ds, report = load_bag_dataset([tmp_path / "bag"])
+    assert report.episodes_used == 10 and ds.state_size == 3 and set(ds.lengths) == {20}, str(report)
+    assert "episode end stop(s), 0 action(s) dropped" in res.stdout, res.stdout[-2000:]
+    moved = np.abs(np.diff(ds.states[:, :, :2], axis=1)).sum()
+    assert moved > 0.1  # the random agent's twists moved the robot
+    train = subprocess.run([executable("nmrm"), "train", "--bag", str(tmp_path / "bag"), "--epochs", "2",
+                            "--out", str(tmp_path / "m")], capture_output=True, text=True, timeout=240)
+    assert train.returncode == 0 and "checkpoint:" in train.stdout, train.stdout + train.stderr

@@ -19,10 +19,11 @@ from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation
 
-from ..ros.node_main import NodeError, Param, declare_parameters, run_node
+from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters, exit_with_upstream, run_node
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
+    "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "spec": Param("", "robot spec YAML (its action: section; see nmrm_ros.ros.robot_spec)"),
     "frame_id": Param("base_link", "header frame of TwistStamped commands"),
 }
@@ -56,8 +57,10 @@ class ActionBridgeNode(Node):
         self.dropped = 0
         self.stops = 0
         self.warned_at = 0.0
-        self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS)
-        self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
+        subs = [self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS),
+                self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)]
+        if p["exit_with_upstream"]:
+            exit_with_upstream(self, subs)
         self.create_timer(1.0 / self.spec.action_rate, self.on_tick)
         self.get_logger().info(
             f"actions -> {self.kind.__name__} on {self.spec.action_topic} at {self.spec.action_rate:g} Hz "

@@ -37,6 +37,8 @@ PARAMETERS = {
     "first_episode": Param(0, "id of the first episode", 0),
     "auto_start": Param(True, "start episodes by themselves (false: by the ~/start_episode service)"),
     "reset_timeout": Param(10.0, "seconds to wait for the reset service between episodes", 0.0),
+    "wait_for_subscribers": Param(0, "auto_start: the first episode waits for this many observation subscribers", 0),
+    "start_delay": Param(0.0, "seconds to wait once they are there, so late endpoints of other nodes match", 0.0),
 }
 
 WARN_EVERY_S = 5.0
@@ -77,6 +79,9 @@ class ObservationBridgeNode(Node):
         self.resetting_since = None
         self.reset_future = None
         self.wrong_size_warned = False  # the state size is checked on the first full sample
+        self.wait_for = int(p["wait_for_subscribers"])
+        self.start_delay = float(p["start_delay"])
+        self.ready_at = None  # auto_start: when the subscribers were there
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
         for i, inp in enumerate(self.spec.inputs):
             self.create_subscription(message_class(inp.type_name), inp.topic,
@@ -91,8 +96,7 @@ class ObservationBridgeNode(Node):
             f"{self.spec.stale_after:g} s; episodes {'start by themselves' if self.auto_start else 'by ~/start_episode'}"
             f", end at {self.spec.max_steps or 'no'} step limit{', leaving the box' if self.spec.box_dims else ''}"
             f", by ~/end_episode")
-        if self.auto_start:
-            self.begin()
+        self.waiting = self.auto_start  # the first episode starts once the subscribers are there
 
     # -- inputs ------------------------------------------------------------------------------------
     def on_input(self, i: int, msg) -> None:
@@ -160,6 +164,14 @@ class ObservationBridgeNode(Node):
         self.pub.publish(msg)
 
     def on_tick(self) -> None:
+        if self.waiting:
+            if self.pub.get_subscription_count() < self.wait_for:
+                return
+            self.ready_at = self.ready_at or time.monotonic()
+            if time.monotonic() - self.ready_at < self.start_delay:
+                return
+            self.waiting = False
+            self.begin()
         if self.resetting_since is not None:
             answered = self.reset_future is not None and self.reset_future.done()
             if answered or time.monotonic() - self.resetting_since > self.reset_timeout:
@@ -190,6 +202,7 @@ class ObservationBridgeNode(Node):
         elif self.exit_code is not None:
             response.success, response.message = False, "all episodes done"
         else:
+            self.waiting = False
             self.begin()
             response.success, response.message = True, f"episode {self.episode} started"
         return response

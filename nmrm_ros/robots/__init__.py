@@ -1,0 +1,1 @@
+"""Fake robots for tests and the docs (a unicycle delivery task)."""
