@@ -251,7 +251,7 @@ def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
 
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
     spec = (root / "config" / "robots" / "fake_delivery.yaml").read_text()
-    spec = spec.replace("rate: 10.0", "rate: 40.0").replace("max_steps: 150", "max_steps: 20")
+    spec = spec.replace("rate: 10.0", "rate: 40.0").replace("max_steps: 200", "max_steps: 20")
     (tmp_path / "fast.yaml").write_text(spec)
     res = subprocess.run([executable("nmrm"), "launch", str(root / "launch_scripts" / "robot_bridge.launch.yaml"),
                           f"spec:={tmp_path / 'fast.yaml'}", "episodes:=10", f"out:={tmp_path / 'bag'}",

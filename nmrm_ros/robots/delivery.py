@@ -8,7 +8,7 @@ and a sensor_msgs/LaserScan of the box and obeys geometry_msgs/Twist, as a robot
 bridges connect to the graph with config/robots/fake_delivery.yaml.
 
 State [x, y, heading] (m, m, rad). One step is DT = 0.1 s at the commanded (v, w). Actions
-(ACTIONS): 0 forward, 1 forward-left, 2 forward-right, 3 stop. The oracle: hidden [picked up,
+(ACTIONS): 0 forward, 1 turn left, 2 turn right (slowly moving on), 3 stop. The oracle: hidden [picked up,
 delivered-so-far]; reward 1 per step in the goal after the pickup was visited (like Key's treasure).
 """
 
@@ -21,11 +21,13 @@ import numpy as np
 
 SIZE = 2.0                       # the box is [0, SIZE] x [0, SIZE] (m)
 DT = 0.1                         # s per step
-ACTIONS = {0: (0.3, 0.0), 1: (0.1, 1.5), 2: (0.1, -1.5), 3: (0.0, 0.0)}  # index -> (v m/s, w rad/s)
-PICKUP = (0.4, 1.6, 0.3)         # centre x, y and radius (m)
-GOAL = (1.6, 0.4, 0.3)
+ACTIONS = {0: (0.5, 0.0), 1: (0.2, 4.0), 2: (0.2, -4.0), 3: (0.0, 0.0)}  # index -> (v m/s, w rad/s)
+PICKUP = (0.5, 1.5, 0.4)         # centre x, y and radius (m)
+GOAL = (1.5, 1.5, 0.4)
+# with these, 9.4% of uniformly random 200-step episodes deliver (1500 episodes, seed 0), and 41%
+# visit the pickup: a random-policy dataset has every kind of episode
 START = (1.0, 1.0)               # episodes start here, heading drawn at random
-MAX_STEPS = 150                  # steps per episode (the task spec's max_steps, the robot spec's max_steps)
+MAX_STEPS = 200                  # steps per episode (the task spec's max_steps, the robot spec's max_steps)
 TASK = f"nmrm_ros.robots.delivery:DeliveryEnv,max_steps={MAX_STEPS},xy=0/1"  # the task spec
 
 
