@@ -30,6 +30,7 @@ EXECUTABLES = {
     "observation_bridge": "nmrm_ros.nodes.observation_bridge_node:main",
     "action_bridge": "nmrm_ros.nodes.action_bridge_node:main",
     "fake_robot": "nmrm_ros.nodes.fake_robot_node:main",
+    "visualizer": "nmrm_ros.nodes.visualizer_node:main",
 }
 
 SHIM = """#!/bin/sh

@@ -123,7 +123,7 @@ def test_the_cli_takes_a_task_spec_and_says_what_is_wrong_in_one_line():
 
 
 def test_xy_names_the_dimensions_the_page_draws_as_a_path():
-    from nmrm_ros.labelling.web_app import _arena
+    from nmrm_ros.tasks.arena import arena as _arena
 
     assert parse_task_spec("gym:MountainCar-v0,xy=0/1").xy == (0, 1)
     assert _arena("gym:MountainCar-v0,xy=0/1") == {"bounds": None, "zones": [], "xy": [0, 1]}

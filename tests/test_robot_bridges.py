@@ -257,7 +257,7 @@ def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
                           f"spec:={tmp_path / 'fast.yaml'}", "episodes:=10", f"out:={tmp_path / 'bag'}",
                           "task:=nmrm_ros.robots.delivery:DeliveryEnv,max_steps=20,xy=0/1"],
                          capture_output=True, text=True, timeout=240)
-    assert res.returncode == 0 and "all 7 node(s) exited cleanly" in res.stdout, res.stdout[-3000:] + res.stderr
+    assert res.returncode == 0 and "all 8 node(s) exited cleanly" in res.stdout, res.stdout[-3000:] + res.stderr
     ds, report = load_bag_dataset([tmp_path / "bag"])
     assert report.episodes_used == 10 and ds.state_size == 3 and set(ds.lengths) == {20}, str(report)
     assert "episode end stop(s), 0 action(s) dropped" in res.stdout, res.stdout[-2000:]
@@ -266,3 +266,57 @@ def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
     train = subprocess.run([executable("nmrm"), "train", "--bag", str(tmp_path / "bag"), "--epochs", "2",
                             "--out", str(tmp_path / "m")], capture_output=True, text=True, timeout=240)
     assert train.returncode == 0 and "checkpoint:" in train.stdout, train.stdout + train.stderr
+
+
+def test_the_visualizer_publishes_standard_topics(ros_domain):
+    """A real visualizer (task key): the arena as a latched MarkerArray (a late subscriber gets
+    it), the agent's PoseStamped and Path in the fixed frame, the served reward and hidden state
+    as plottable std_msgs, and /diagnostics with the steps and the model served."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from std_msgs.msg import Float32, Float32MultiArray
+    from visualization_msgs.msg import MarkerArray
+
+    from graph_helpers import Capture, finish, start
+    from nmrm_msgs.msg import EnvObservation, RewardStep
+    from nmrm_ros.ros.topics import OBSERVATION, REWARD_STEP
+
+    capture = Capture()
+    viz = start("visualizer", task="key")
+    got: dict = {k: [] for k in ("arena", "pose", "path", "reward", "hidden", "diag")}
+    try:
+        obs = capture.publisher(EnvObservation, OBSERVATION)
+        rew = capture.publisher(RewardStep, REWARD_STEP)
+        assert capture.spin_until(lambda: obs.get_subscription_count() >= 1 and rew.get_subscription_count() >= 1, 30)
+        capture.spin_for(0.5)
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node = capture.node
+        node.create_subscription(MarkerArray, "/nmrm/viz/arena", got["arena"].append, latched)  # after it was sent
+        node.create_subscription(PoseStamped, "/nmrm/viz/pose", got["pose"].append, 10)
+        node.create_subscription(Path, "/nmrm/viz/path", got["path"].append, 10)
+        node.create_subscription(Float32, "/nmrm/viz/reward", got["reward"].append, 10)
+        node.create_subscription(Float32MultiArray, "/nmrm/viz/hidden", got["hidden"].append, 10)
+        node.create_subscription(DiagnosticArray, "/diagnostics", got["diag"].append, 10)
+        assert capture.spin_until(lambda: got["arena"], 10)
+        capture.spin_for(1.0)
+        for t in range(5):
+            obs.publish(EnvObservation(task="key", episode=0, step=t, state=[0.1 * t, 0.5]))
+            rew.publish(RewardStep(episode=0, step=t, reward=0.25 * t, hidden=[0.5, -0.5], source="key_v001"))
+            capture.spin_for(0.05)
+        assert capture.spin_until(lambda: len(got["path"]) >= 5 and len(got["hidden"]) >= 5, 10)
+        assert capture.spin_until(lambda: any(s.values and s.values[-1].value == "key_v001"
+                                              for d in got["diag"] for s in d.status), 5)
+        viz.send_signal(signal.SIGINT)
+        code, out = finish(viz)
+    finally:
+        capture.close()
+    kinds = [m.ns for m in got["arena"][0].markers]
+    assert {"spawn", "treasure", "key", "bounds"} <= set(kinds) and all(m.header.frame_id == "map"
+                                                                          for m in got["arena"][0].markers)
+    assert got["pose"][-1].header.frame_id == "map" and got["pose"][-1].pose.position.x == pytest.approx(0.4)
+    assert len(got["path"][-1].poses) == 5
+    assert [r.data for r in got["reward"]][-1] == pytest.approx(1.0)
+    assert list(got["hidden"][-1].data) == [0.5, -0.5]
+    assert code == 0, out

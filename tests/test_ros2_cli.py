@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 LAUNCH_DIR = REPO / "launch_scripts"
 ROS2 = Path(os.environ.get("NMRM_VENV", REPO / ".venv")) / "bin" / "ros2"
 NODES = ("env_sim", "labeller_oracle", "labeller_web", "reward_model", "agent", "recorder", "replay",
-         "trainer", "observation_bridge", "action_bridge", "fake_robot")
+         "trainer", "observation_bridge", "action_bridge", "fake_robot", "visualizer")
 
 pytestmark = pytest.mark.skipif(
     not ROS2.exists(), reason=f"real ROS 2 CLI not installed ({ROS2} missing; scripts/test.sh installs it "

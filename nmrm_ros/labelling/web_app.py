@@ -46,6 +46,7 @@ from typing import Callable
 
 from aiohttp import web
 
+from ..tasks.arena import arena
 from .queue import PREFERENCES, LabelError, LabelQueue
 
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; connect-src 'self'; img-src 'self'; "
@@ -55,32 +56,6 @@ STATIC = {"page.js": "text/javascript", "page.css": "text/css", "page.html": "te
 
 def _error(status: int, message: str) -> web.Response:
     return web.json_response({"error": message}, status=status)
-
-
-def _arena(task: str) -> dict | None:
-    """What the page draws under a path: the arena's bounds and zones (x0, x1, y0, y1, kind);
-    None for a task of the user's (the page then plots each state dimension over time)."""
-    if ":" in task:
-        from ..tasks.gym_task import parse_task_spec
-
-        xy = parse_task_spec(task).xy
-        return None if xy is None else {"bounds": None, "zones": [], "xy": list(xy)}
-    if task == "lunar_lander":
-        return {"bounds": [-1.5, 1.5, -0.2, 1.6], "zones": [[-0.2, 0.2, -0.05, 0.0, "pad"]],
-                "xy": [0, 1]}
-    from ..tasks.navigation import CHARGE_Y_MAX, KEY_ZONE, SPAWN_ZONES, TREASURE_ZONE
-
-    def zone(z, kind):
-        return [z.x_min, z.x_max, z.y_min, z.y_max, kind]
-
-    zones = [zone(z, "spawn") for z in SPAWN_ZONES]
-    zones.append([0.0, 1.0, TREASURE_ZONE.y_min, TREASURE_ZONE.y_max, "treasure row"] if task == "moving"
-                 else zone(TREASURE_ZONE, "treasure"))
-    if task == "key":
-        zones.append(zone(KEY_ZONE, "key"))
-    if task == "charger":
-        zones.append([0.0, 1.0, 0.0, CHARGE_Y_MAX, "charger"])
-    return {"bounds": [0.0, 1.0, 0.0, 1.0], "zones": zones, "xy": [0, 1]}
 
 
 TOKEN_COOKIE = "nmrm_token"
@@ -171,7 +146,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     async def api_info(request: web.Request) -> web.Response:
         person = request[PERSON]
         return web.json_response({"task": queue.task, "range": [queue.low, queue.high],
-                                  "arena": _arena(queue.task), "ordering": queue.ordering, **info,
+                                  "arena": arena(queue.task), "ordering": queue.ordering, **info,
                                   "person": person, "labeller": f"person/{person}",
                                   "team": list(queue.people), "assignment": queue.assignment,
                                   "feedback": feedback, "pair_ordering": queue.pair_ordering})

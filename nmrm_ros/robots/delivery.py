@@ -27,6 +27,10 @@ GOAL = (1.5, 1.5, 0.4)
 # with these, 9.4% of uniformly random 200-step episodes deliver (1500 episodes, seed 0), and 41%
 # visit the pickup: a random-policy dataset has every kind of episode
 START = (1.0, 1.0)               # episodes start here, heading drawn at random
+#: what the labelling page and the visualizer draw: the box, and the zones as squares round their circles
+ARENA = {"bounds": [0.0, SIZE, 0.0, SIZE],
+         "zones": [[c[0] - c[2], c[0] + c[2], c[1] - c[2], c[1] + c[2], kind] for c, kind in
+                   (((1.0, 1.0, 0.1), "spawn"), (PICKUP, "pickup"), (GOAL, "goal"))]}
 MAX_STEPS = 200                  # steps per episode (the task spec's max_steps, the robot spec's max_steps)
 TASK = f"nmrm_ros.robots.delivery:DeliveryEnv,max_steps={MAX_STEPS},xy=0/1"  # the task spec
 
