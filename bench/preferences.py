@@ -190,6 +190,7 @@ def report(out: Path) -> str:
 
 def plot(out: Path) -> Path | None:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -215,6 +216,8 @@ def plot(out: Path) -> Path | None:
                 ax.plot(ns, worst, line, color=colour, marker="o", label=f"{arch}, {teacher} (worst seed)")
                 ax.plot(ns, mean, line, color=colour, alpha=0.35)
             ax.set_xscale("log")
+            ax.set_xticks(PAIRS, [str(n) for n in PAIRS])
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
             ax.set_title(f"{task}: {metric.replace('_', ' ')}")
             ax.set_xlabel("comparisons (returns: labels)")
             ax.grid(alpha=0.3)
