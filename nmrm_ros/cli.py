@@ -333,6 +333,16 @@ def _label_records(bag: list | None, checkpoint: Path | None, file: Path | None)
         raise typer.BadParameter(str(exc)) from None
 
 
+def _optional_labels(checkpoint: Path) -> list:
+    """A checkpoint's return labels, or [] if it was trained on comparisons only."""
+    from .labelling.label_files import checkpoint_labels
+
+    try:
+        return [r for r in checkpoint_labels(checkpoint) if r.get("return") is not None]
+    except ValueError:
+        return []
+
+
 @labels_app.command("report")
 def labels_report(
     bag: list[Path] = typer.Option(None, help="labels bags or recordings (repeat for several)"),
@@ -341,15 +351,23 @@ def labels_report(
     show: bool = typer.Option(False, help="also list every label (latest per labeller and episode)"),
 ) -> None:
     """Who labelled how much, each person's error on gold episodes (labels of gold/ or oracle/
-    labellers), and how far people agree on the episodes they both labelled."""
-    from .labelling.agreement import format_report, label_report
-    from .labelling.label_files import latest
+    labellers), and how far people agree on the episodes they both labelled; the same for
+    comparisons (TrajectoryPreference) in bags and checkpoints."""
+    from .labelling.agreement import comparison_report, format_comparison_report, format_report, label_report
+    from .labelling.label_files import checkpoint_comparisons, latest, read_bag_comparisons
 
-    records = _label_records(bag, checkpoint, file)
-    if not records:
+    comparisons = _bad_input(lambda: read_bag_comparisons(bag) if bag else
+                             checkpoint_comparisons(checkpoint) if checkpoint else [])
+    records = _label_records(bag, checkpoint, file) if not (comparisons and checkpoint) else \
+        _bad_input(_optional_labels, checkpoint)
+    if not records and not comparisons:
         raise typer.BadParameter("no labels there")
-    for line in format_report(label_report(records)):
-        typer.echo(line)
+    if records:
+        for line in format_report(label_report(records)):
+            typer.echo(line)
+    if comparisons:
+        for line in format_comparison_report(comparison_report(comparisons)):
+            typer.echo(line)
     if show:
         typer.echo(f"{'labeller':24s} {'source':10s} {'episode':>8s} {'length':>6s} {'return':>10s}  given (UTC)")
         for r in sorted(latest(records), key=lambda r: (r["source"], r["episode"], r["labeller"])):

@@ -221,3 +221,40 @@ def test_centred_correlation_ignores_a_function_of_time_added_to_every_bag():
     shifted = true + np.linspace(-30, 30, 10)[None, :]  # g(t): invisible to comparisons of equal-length bags
     assert correlation(shifted.ravel(), true.ravel()) < 0.2
     assert correlation(centred(shifted.ravel(), step), centred(true.ravel(), step)) == pytest.approx(1.0)
+
+
+def test_team_comparisons_are_reported_and_recorded_as_provenance(tmp_path):
+    """Two people and the oracle compare in labels bags (LabelStore, as the page writes them):
+    `nmrm labels report` counts each labeller's comparisons, their agreement with gold and with
+    each other; a dataset from the bags records every comparison it uses."""
+    import subprocess
+
+    from graph_helpers import executable
+    from nmrm_ros.bags import write_dataset_bag
+    from nmrm_ros.bags.episodes import load_bag_dataset
+    from nmrm_ros.datasets import generate_screened
+    from nmrm_ros.labelling import LabelStore
+
+    ds = generate_screened("key", 12, seed=0)
+    write_dataset_bag(ds, tmp_path / "rec", include_oracle=False)
+    n = int(ds.lengths[0])
+    answers = {"person/alice": [(0, 1, 1.0), (2, 3, 0.0), (4, 5, 1.0)],
+               "person/bob": [(1, 0, 0.0), (2, 3, 1.0)],          # (1, 0, 0) is alice's (0, 1, 1) turned round
+               "gold/oracle": [(0, 1, 1.0), (4, 5, 0.0)]}
+    for who, rows in answers.items():
+        store = LabelStore(tmp_path / "labels", who)
+        for t, (a, b, p) in enumerate(rows):
+            store.append_comparison("key", a, n, b, n, p, stamp_ns=10**9 * (t + 1))
+        store.close()
+    bags = sorted(str(p) for p in (tmp_path / "labels").iterdir())
+    res = subprocess.run([executable("nmrm"), "labels", "report", *sum((["--bag", b] for b in bags), [])],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    out = res.stdout
+    assert "person/alice                        3  2, 50%" in out, out   # (0,1) as gold, (4,5) not
+    assert "person/bob                          2  1, 100%" in out, out
+    assert "agreement: 2 pair(s) compared by two or more people; 50% of their answers the same" in out, out
+    data, report = load_bag_dataset([tmp_path / "rec", *bags], labeller="person/alice")
+    assert report.comparisons_used == 3 and len(data.meta["comparisons"]) == 3
+    assert {(r["a"], r["b"], r["p"], r["labeller"]) for r in data.meta["comparisons"]} == \
+        {(a, b, p, "person/alice") for a, b, p in answers["person/alice"]}

@@ -232,8 +232,11 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
 
 def _comparisons(comparisons: list, index: dict, ds: TrajectoryDataset, report: BagDatasetReport) -> np.ndarray:
     """(m, 3) rows (a, b, p) of the comparisons whose both episodes are in the dataset with the
-    lengths the labeller saw; the others counted in the report."""
-    out = []
+    lengths the labeller saw (their records in ds.meta["comparisons"], provenance as
+    meta["labels"] is for returns); the others counted in the report."""
+    from ..labelling.label_files import comparison_record
+
+    out, records = [], []
     report.comparisons_seen = len(comparisons)
     for a, b, m in comparisons:
         if a not in index or b not in index:
@@ -243,8 +246,12 @@ def _comparisons(comparisons: list, index: dict, ds: TrajectoryDataset, report: 
         elif int(m.preference) not in (-1, 0, 1):
             report.skipped["comparison_unknown_preference"] += 1
         else:
-            out.append((index[a], index[b], (int(m.preference) + 1) / 2))
+            p = (int(m.preference) + 1) / 2
+            out.append((index[a], index[b], p))
+            stamp = int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
+            records.append(comparison_record(m.task, a[0], a[2], m.length_a, b[2], m.length_b, p, m.labeller, stamp))
     report.comparisons_used = len(out)
+    ds.meta["comparisons"] = records
     return np.asarray(out, dtype=np.float64).reshape(-1, 3)
 
 

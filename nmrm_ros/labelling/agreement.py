@@ -9,6 +9,10 @@ every other labeller is a person. Figures:
 - agreement: episodes labelled by two or more people, the mean absolute difference over every
   pair of their labels on the same episode, and per pair of people the same with its Pearson
   correlation (from 3 shared episodes on).
+
+Comparisons (`comparison_report`): per labeller the comparisons given and, on pairs a gold
+labeller also compared, how often they answered as gold did; agreement: pairs compared by two or
+more people and the fraction of those people's answers that are the same (per pair of people too).
 """
 
 from __future__ import annotations
@@ -86,4 +90,58 @@ def format_report(report: dict) -> list[str]:
             corr = "" if p["correlation"] is None else f", correlation {p['correlation']:.3f}"
             lines.append(f"  {p['a']} vs {p['b']}: {p['episodes']} episode(s), mean abs difference "
                          f"{p['mean_abs_diff']:.3g}{corr}")
+    return lines
+
+
+def _oriented(r: dict) -> float:
+    """A comparison's answer as P(min episode better)."""
+    return r["p"] if r["a"] < r["b"] else 1.0 - r["p"]
+
+
+def comparison_report(records: list[dict]) -> dict:
+    """{"labellers": {id: {"comparisons", "gold_n", "gold_agree"}}, "agreement": {"pairs",
+    "same", "people": [{"a", "b", "pairs", "same"}]}} of the latest answer per labeller and pair."""
+    from .label_files import latest_comparisons
+
+    by_pair: dict = defaultdict(dict)
+    counts: dict = defaultdict(int)
+    for r in latest_comparisons(records):
+        by_pair[(r["source"], r["task"], min(r["a"], r["b"]), max(r["a"], r["b"]))][r["labeller"]] = _oriented(r)
+        counts[r["labeller"]] += 1
+    gold_hits: dict = defaultdict(list)
+    pair_same: dict = defaultdict(list)
+    same, shared = [], 0
+    for answers in by_pair.values():
+        gold = [v for lab, v in answers.items() if is_gold(lab)]
+        people = sorted(lab for lab in answers if not is_gold(lab))
+        if gold:
+            for lab in people:
+                gold_hits[lab].append(answers[lab] == gold[-1])
+        if len(people) >= 2:
+            shared += 1
+            for a, b in combinations(people, 2):
+                pair_same[(a, b)].append(answers[a] == answers[b])
+                same.append(answers[a] == answers[b])
+    labellers = {lab: {"comparisons": counts[lab], "gold_n": len(gold_hits.get(lab, [])),
+                       "gold_agree": float(np.mean(gold_hits[lab])) if gold_hits.get(lab) else None}
+                 for lab in sorted(counts)}
+    people = [{"a": a, "b": b, "pairs": len(v), "same": float(np.mean(v))} for (a, b), v in sorted(pair_same.items())]
+    return {"labellers": labellers, "agreement": {"pairs": shared, "same": float(np.mean(same)) if same else None,
+                                                  "people": people}}
+
+
+def format_comparison_report(report: dict) -> list[str]:
+    """The comparison report as lines of text (for `nmrm labels report`)."""
+    lines = [f"{'labeller':28s} {'compared':>8s}  pairs also compared by gold, answered as gold"]
+    for lab, r in report["labellers"].items():
+        gold = ("(gold)" if is_gold(lab) else "-" if not r["gold_n"] else f"{r['gold_n']}, {r['gold_agree']:.0%}")
+        lines.append(f"{lab:28s} {r['comparisons']:8d}  {gold}")
+    a = report["agreement"]
+    if not a["pairs"]:
+        lines.append("agreement: no pair compared by two or more people")
+    else:
+        lines.append(f"agreement: {a['pairs']} pair(s) compared by two or more people; {a['same']:.0%} of "
+                     f"their answers the same")
+        for p in a["people"]:
+            lines.append(f"  {p['a']} vs {p['b']}: {p['pairs']} pair(s), {p['same']:.0%} the same")
     return lines

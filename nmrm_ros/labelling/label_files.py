@@ -37,6 +37,41 @@ def read_bag_labels(paths: list) -> list[dict]:
     return records
 
 
+T_PREF = "nmrm_msgs/msg/TrajectoryPreference"
+
+
+def comparison_record(task: str, source: str, a: int, length_a: int, b: int, length_b: int, p: float,
+                      labeller: str, stamp_ns: int) -> dict:
+    """One comparison as a record: who said which of episodes a and b was better (p = P(a
+    better): 1, 0 or 0.5), when."""
+    return {"task": task, "source": source, "a": int(a), "length_a": int(length_a), "b": int(b),
+            "length_b": int(length_b), "p": float(p), "labeller": labeller, "stamp_ns": int(stamp_ns)}
+
+
+def read_bag_comparisons(paths: list) -> list[dict]:
+    """Every TrajectoryPreference in the bags at `paths`, as comparison records, in order."""
+    from ..bags import iter_decoded
+    from ..bags.schemas import split_topic
+
+    records = []
+    for path in paths:
+        for topic, type_name, log_ns, m in iter_decoded(path):
+            if type_name != T_PREF or int(m.preference) not in (-1, 0, 1):
+                continue
+            stamp = int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec) or int(log_ns)
+            records.append(comparison_record(m.task, m.source_a or split_topic(topic)[0], m.episode_a, m.length_a,
+                                             m.episode_b, m.length_b, (int(m.preference) + 1) / 2, m.labeller, stamp))
+    return records
+
+
+def latest_comparisons(records: list[dict]) -> list[dict]:
+    """The latest answer per (labeller, source, task, unordered pair), oriented as given."""
+    out: dict = {}
+    for r in sorted(records, key=lambda r: r["stamp_ns"]):
+        out[(r["labeller"], r["source"], r["task"], min(r["a"], r["b"]), max(r["a"], r["b"]))] = r
+    return list(out.values())
+
+
 def latest(records: list[dict]) -> list[dict]:
     """The latest label per (labeller, source, task, episode): a correction replaces what it corrects."""
     out: dict = {}
@@ -141,3 +176,12 @@ def checkpoint_labels(path: str | Path) -> list[dict]:
         raise ValueError(f"{path}: records no labels (trained on {source}); checkpoints trained from "
                          f"bags or by the trainer node record theirs")
     return labels
+
+
+def checkpoint_comparisons(path: str | Path) -> list[dict]:
+    """The comparisons a checkpoint was built from ([] if none are recorded)."""
+    from ..mil.checkpoint import load_checkpoint
+
+    _, meta = load_checkpoint(path)
+    found = (meta.get("data") or {}).get("meta", {}).get("comparisons")
+    return found if isinstance(found, list) else []

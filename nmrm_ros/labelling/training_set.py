@@ -61,6 +61,14 @@ class TrainingSet:
         return [(a, b, p) for (a, la, b, lb, p, _) in (self.comparisons[k] for k in sorted(self.comparisons))
                 if self._here(a, la) and self._here(b, lb)]
 
+    def comparison_records(self) -> list:
+        """The joined comparisons as provenance records (label_files.comparison_record)."""
+        from .label_files import comparison_record
+
+        return [comparison_record(self.task, self.source, a, la, b, lb, p, lab, stamp)
+                for (lab, _, _), (a, la, b, lb, p, stamp) in sorted(self.comparisons.items())
+                if self._here(a, la) and self._here(b, lb)]
+
     def joined(self) -> list:
         """[(labeller, episode, return)] of the labels whose episode is here with the same length."""
         return [(lab, ep, value) for (lab, ep), (value, length, _) in sorted(self.labels.items())
@@ -90,7 +98,7 @@ class TrainingSet:
                                         self.labels[(lab, ep)][2] if lab else 0)
                            for i, (lab, ep, value) in enumerate(rows)],
                 "labellers": sorted({lab for lab, _, _ in rows if lab}), "oracle_ground_truth": False,
-                "comparisons": len(compared)}
+                "comparisons": self.comparison_records()}
         row_of: dict = {}
         for i, (_, ep, _) in enumerate(rows):
             row_of.setdefault(ep, i)
