@@ -118,6 +118,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="*", default=list(NAV), choices=NAV)
     parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--only", type=int, nargs="*", default=None, help="train only these repeats (of --repeats)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="training-config overrides")
     parser.add_argument("--tag", default="head", help="results go to bench/results/any_dataset/TAG/")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
@@ -127,7 +128,7 @@ def main() -> None:
     if not args.report:
         overrides = parse_overrides(args.set)
         jobs = [(t, r, overrides, out) for t in args.tasks for r in range(args.repeats)
-                if not (out / f"{t}_r{r}.json").is_file()]
+                if not (out / f"{t}_r{r}.json").is_file() and (args.only is None or r in args.only)]
         print(f"# {len(jobs)} runs to train (finished ones skipped), overrides {overrides}", flush=True)
         with ProcessPoolExecutor(args.jobs) as pool:
             for res in pool.map(run_repeat, jobs):
