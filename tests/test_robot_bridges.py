@@ -320,3 +320,18 @@ def test_the_visualizer_publishes_standard_topics(ros_domain):
     assert [r.data for r in got["reward"]][-1] == pytest.approx(1.0)
     assert list(got["hidden"][-1].data) == [0.5, -0.5]
     assert code == 0, out
+
+
+def test_nmrm_launch_honours_node_conditions(tmp_path):
+    """`if:` / `unless:` on a node, as launch evaluates them: fake_robot:=false leaves the fake
+    robot out; a value that is not true/false/1/0 is a one-line LaunchError."""
+    from pathlib import Path
+
+    from nmrm_ros.launcher import LaunchError, parse_launch_file
+
+    path = Path(__file__).resolve().parents[1] / "launch_scripts" / "robot_bridge.launch.yaml"
+    names = lambda args: [n.name for n in parse_launch_file(path, args, params_dir=tmp_path)]  # noqa: E731
+    assert "fake_robot" in names({}) and "fake_robot" in names({"fake_robot": "True"})
+    assert "fake_robot" not in names({"fake_robot": "false"}) and "observation_bridge" in names({"fake_robot": "0"})
+    with pytest.raises(LaunchError, match="is not true, false, 1 or 0"):
+        names({"fake_robot": "maybe"})
