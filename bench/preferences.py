@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from any_dataset import ens_seeds, train_repeat
 from reproduce_tables import load_dataset, parse_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,23 +74,13 @@ def run(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import evaluate, load_train_config, model_config
-    from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
-    from nmrm_ros.mil.training import train_ensemble
+    from nmrm_ros.mil import load_train_config
 
     ds, feedback = training_data(task, teacher, n, r)
     held = load_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, feedback=feedback, **overrides)
-    seeds = [r + 1000 * j for j in range(cfg.members)]
-    train, val, test = split_indices(len(ds), r)
-    ens = init_ensemble(model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout,
-                                     hidden_size=cfg.hidden_size), seeds)
-    t0 = time.perf_counter()
-    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
-    seconds = time.perf_counter() - t0
-    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
-    on_test, on_held = evaluate(mean, ds.subset(test)), evaluate(mean, held)
+    seeds = ens_seeds(r, cfg)
+    ens, result, seconds, on_test, on_held = train_repeat(arch, ds, held, r, cfg)  # scored as the mean of its members
     keep = ("preference_accuracy", "reward_correlation", "reward_correlation_centred", "return_mse", "reward_mse")
     res = {"task": task, "arch": arch, "teacher": teacher, "teacher_knobs": TEACHERS[teacher], "n": n,
            "seed": r, "data_seed": r, "weight_seeds": seeds, "feedback": feedback,
@@ -100,8 +91,8 @@ def run(job: tuple) -> dict:
     from nmrm_ros.mil import save_checkpoint
 
     serving = int(np.argmin(result.best_val_loss))
-    mean.serving_member.fill_(serving)
-    save_checkpoint(mean, MODELS / out.name / "models" / run_name(task, arch, teacher, n, r), task=task, seed=r,
+    ens.serving_member.fill_(serving)
+    save_checkpoint(ens, MODELS / out.name / "models" / run_name(task, arch, teacher, n, r), task=task, seed=r,
                     split_seed=r, train_config=cfg.to_dict(), ensemble={"members": len(seeds), "seeds": seeds,
                                                                         "serving_member": serving},
                     metrics={"test": on_test, "held": on_held})
