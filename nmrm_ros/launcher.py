@@ -47,6 +47,8 @@ from pathlib import Path
 
 import yaml
 
+from .ros.node_main import TEARDOWN_CUT_EXIT
+
 _SUBST = re.compile(r"\$\(([^)]*)\)")
 
 
@@ -300,7 +302,7 @@ def run(nodes: list, grace: float = 10.0, out=None) -> int:
         while any(p.poll() is None for _, p in procs):
             for name, p in procs:
                 code = p.poll()
-                if code not in (None, 0) and failed is None and stopping["why"] is None:
+                if code not in (None, 0, TEARDOWN_CUT_EXIT) and failed is None and stopping["why"] is None:
                     failed = (name, code)
                     out.write(f"[nmrm launch] node '{name}' died with exit code {code}; stopping the others\n")
                     stopping["why"] = "failure"
@@ -317,7 +319,7 @@ def run(nodes: list, grace: float = 10.0, out=None) -> int:
             t.join(timeout=1.0)
         if failed is None:
             for name, p in procs:
-                if p.returncode not in (0, -signal.SIGINT) and stopping["why"] is None:
+                if p.returncode not in (0, TEARDOWN_CUT_EXIT, -signal.SIGINT) and stopping["why"] is None:
                     failed = (name, p.returncode)
         if failed is not None:
             out.write(f"[nmrm launch] failed: node '{failed[0]}' exited with code {failed[1]}\n")
@@ -327,7 +329,11 @@ def run(nodes: list, grace: float = 10.0, out=None) -> int:
             out.write(f"[nmrm launch] interrupted by {stopping['why']}: {len(procs)} node(s) stopped "
                       f"(exit codes: {codes})\n")
             return 128 + int(signal.Signals[stopping["why"]])
+        cut = [name for name, p in procs if p.returncode == TEARDOWN_CUT_EXIT]
         out.write(f"[nmrm launch] all {len(procs)} node(s) exited cleanly\n")
+        if cut:
+            out.write(f"[nmrm launch] warning: {', '.join(cut)} finished its work but its DDS teardown did not "
+                      f"end in time and was cut (exit code {TEARDOWN_CUT_EXIT}; the stacks above say where)\n")
         return 0
     finally:
         stop_all(signal.SIGKILL)

@@ -374,3 +374,21 @@ def test_lossless_conversions_and_unknown_names(ros_domain):
     assert "ignoring unknown parameter(s) ['epsiodes']" in out
     assert "waiting for 1 subscriber(s) ['agent']" in out  # converted, then the start-up timeout
     assert result.returncode == 1 and "start-up timeout" in out and "Traceback" not in out
+
+
+@pytest.mark.parametrize("code, expected", [(0, 14), (2, 1)])
+def test_a_hung_teardown_is_cut_and_says_where(code, expected):
+    """The shutdown bound of every node (node_main): once its work is done, a teardown stuck in C
+    code that holds the GIL (as Fast DDS's entity deletion did in CI) is cut at the limit with its
+    stacks on stderr: exit 14 (TEARDOWN_CUT_EXIT, counted as clean by nmrm launch) for a node that
+    was to exit 0, exit 1 for one that was failing anyway."""
+    script = ("import ctypes, sys\n"
+              "from nmrm_ros.ros.node_main import TEARDOWN_CUT_EXIT, _arm_teardown_watchdog\n"
+              "assert TEARDOWN_CUT_EXIT == 14\n"
+              f"_arm_teardown_watchdog(0.5, {code})\n"
+              "ctypes.PyDLL(None).sleep(20)  # stuck in C, GIL held\n")
+    started = time.monotonic()
+    res = subprocess.run([os.environ.get("NMRM_VENV", ".venv") + "/bin/python", "-c", script],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == expected and time.monotonic() - started < 10, res.stderr
+    assert "Timeout" in res.stderr and 'File "<string>", line 5' in res.stderr, res.stderr

@@ -34,6 +34,10 @@ class NodeError(RuntimeError):
 # this limit, which comes first, every thread's stack is written to stderr (so a hang says where)
 # and the process exits with code 1.
 SHUTDOWN_LIMIT_S = 12.0
+# The exit code of a node whose work was done (files closed, publishers flushed) but whose DDS
+# teardown did not finish within SHUTDOWN_LIMIT_S: its stacks are on stderr. `nmrm launch` counts it
+# as a clean exit and says so.
+TEARDOWN_CUT_EXIT = int(signal.SIGALRM)  # 14
 # An iteration of the spin loop (one callback) that takes longer than this writes every thread's
 # stack to stderr (and the node goes on): a node that stops answering, even Ctrl-C (Python runs
 # signal handlers only between callbacks), says where it is stuck.
@@ -190,8 +194,8 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
             close = getattr(node, "close", None)
             if close is not None:
                 close()  # the node's own files (bags, checkpoints) are complete after this
-        # The DDS teardown below once hung for minutes on a loaded machine (a CI run: env_sim had
-        # said "done" and never exited). Bound it, through interpreter exit (SHUTDOWN_LIMIT_S).
+        # Bound what follows: a hang in the executor's shutdown or in flushing is a failure (exit 1,
+        # every thread's stack on stderr; SHUTDOWN_LIMIT_S).
         left = SHUTDOWN_LIMIT_S - (time.monotonic() - stopping)
         faulthandler.dump_traceback_later(max(left, 2.0), exit=True)
         if executor is not None:
@@ -206,10 +210,40 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
             executor = None
         if node is not None:
             _flush_publishers(node, timeout=3.0)
+        # The node's work is delivered: its files are closed and subscribers acknowledged what it
+        # published. What is left is Fast DDS's teardown, which now and then hangs on a loaded
+        # machine (CI runs: env_sim for minutes after "done"; the agent 12 s in destroy_service).
+        # Cut it at the limit with TEARDOWN_CUT_EXIT, so a launcher can tell "work done, teardown
+        # hung" from a failure; the stacks still say where it hung.
+        _arm_teardown_watchdog(max(SHUTDOWN_LIMIT_S - (time.monotonic() - stopping), 2.0), code)
+        if node is not None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
     return code
+
+
+def _arm_teardown_watchdog(seconds: float, code: int) -> None:
+    """In `seconds` from now, write every thread's stack to stderr and end the process: with
+    TEARDOWN_CUT_EXIT if it was to exit with 0, else with 1. Works while the main thread is stuck
+    in C code holding the GIL (where no Python thread or signal handler can run): faulthandler's
+    watchdog is a C thread, and the exit is libc's _exit installed as the C handler of SIGALRM
+    (which passes the signal number, TEARDOWN_CUT_EXIT, as the exit status)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if code != 0:
+        faulthandler.dump_traceback_later(seconds, exit=True)
+        return
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+    if libc.signal(int(signal.SIGALRM), ctypes.cast(libc._exit, ctypes.c_void_p).value) == ctypes.c_void_p(-1).value:
+        faulthandler.dump_traceback_later(seconds, exit=True)  # no handler: the plain bound
+        return
+    faulthandler.dump_traceback_later(seconds, exit=False)
+    signal.setitimer(signal.ITIMER_REAL, seconds + 0.3)
 
 
 def _warn_about_namesakes(node, after: float = 2.0) -> None:
