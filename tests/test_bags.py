@@ -112,6 +112,42 @@ def test_sigint_leaves_a_readable_bag(capture, tmp_path):
     assert report.episodes_used == 5 and ds.returns.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0]
 
 
+def test_the_recorder_subscribes_to_observations_once_it_knows_their_publisher(capture, tmp_path):
+    """A producer starts when it sees the recorder's observation subscription, and cannot see
+    whether the recorder's side has matched it yet: so that subscription is made only once the
+    recorder knows the publisher (it then matches at once), or after observation_wait s. Steps
+    published the moment the subscription appears are all recorded."""
+    from rclpy.duration import Duration
+
+    out = tmp_path / "rec"
+    rec = start("recorder", output=str(out), observation_wait=60.0)
+    node = capture.node
+
+    def recorder_on(topic):
+        return any(i.node_name == "recorder" for i in node.get_subscriptions_info_by_topic("/" + topic))
+
+    assert capture.spin_until(lambda: recorder_on(TRAJECTORY_RETURN), 30)
+    capture.spin_for(1.0)
+    assert not recorder_on(OBSERVATION)  # no observation publisher yet: not subscribed
+    pub = capture.publisher(EnvObservation, OBSERVATION)
+    assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)  # the recorder, the capture
+    for t in range(51):
+        pub.publish(EnvObservation(task="key", episode=0, step=t, state=[0.0, 1.0], truncated=t == 50))
+    assert pub.wait_for_all_acked(Duration(seconds=30))
+    rec.send_signal(signal.SIGINT)
+    code, log = finish(rec)
+    assert code == 0, log
+    steps = [m.step for t, _, _, m in iter_decoded(out) if t == "/" + OBSERVATION]
+    assert steps == list(range(51)), log
+    # with nobody publishing, it subscribes after observation_wait all the same
+    rec = start("recorder", output=str(tmp_path / "alone"), observation_wait=0.5)
+    try:
+        assert capture.spin_until(lambda: recorder_on(OBSERVATION), 30)
+    finally:
+        rec.send_signal(signal.SIGINT)
+        finish(rec)
+
+
 def test_hard_kill_then_repair_recovers_complete_episodes(capture, tmp_path):
     out = tmp_path / "killed"
     rec = start("recorder", output=str(out), chunk_size=16384, flush_period=0.2)

@@ -28,6 +28,8 @@ PARAMETERS = {
     "namespaces": Param([""], "record `topics` under each of these namespaces (e.g. [/robot1, /robot2]); "
                               "'' = as given"),
     "flush_period": Param(1.0, "seconds between flushes to disk (the chunk in progress is ended)", 0.001),
+    "observation_wait": Param(5.0, "seconds at most to wait, before subscribing to the observation topic, until "
+                                   "its publishers are known here (so the first steps are not lost; 0: at once)", 0.0),
     "chunk_size": Param(262144, "MCAP chunk size in bytes (smaller: less lost on a hard kill)", 1024),
 }
 
@@ -60,18 +62,45 @@ class RecorderNode(Node):
         except (FileExistsError, OSError) as exc:
             raise NodeError(str(exc)) from None
         self.subs = []
-        # the observation topic last: env_sim starts when it sees that subscription (wait_for_nodes),
-        # and by then this node has announced its other subscriptions (labels, oracle steps) before it
-        order = sorted(resolved.items(), key=lambda item: item[1][0].endswith("/nmrm/observation"))
-        for topic, (name, type_name) in order:
+        self.pending = []  # observation topics, subscribed once their publishers are known here
+        for topic, (name, type_name) in resolved.items():
             self.bag.add_topic(name, type_name)
-            cb = (lambda data, n=name, t=type_name:
-                  self.on_message(n, t, data))
-            self.subs.append(self.create_subscription(message_class(type_name), topic, cb, STEP_QOS, raw=True))
+            if name.endswith("/nmrm/observation"):
+                self.pending.append((topic, name, type_name))
+            else:
+                self._subscribe(topic, name, type_name)
+        # A producer (env_sim, observation_bridge) starts its first episode once it sees our
+        # observation subscription; it cannot see whether *our* side has matched its publisher, and
+        # under load that took more than its start_delay: the recording lost the first steps of
+        # episode 0 (the fake-robot graph, 3 graphs at once on 2 cores: 3 of 75 runs). So the
+        # observation subscription comes last, once this node knows the topic's publishers (it then
+        # matches them as it is created) and its other subscriptions have matched every publisher
+        # it knows of theirs, or after `observation_wait` s.
+        self.wait_started = time.monotonic()
+        self.observation_wait = float(p["observation_wait"])
+        self.pending_timer = self.create_timer(0.05, self._subscribe_observations) if self.pending else None
         self.create_timer(float(p["flush_period"]), self.bag.flush)
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.subs)
         self.get_logger().info(f"recording {len(resolved)} topic(s) to {output}")
+
+    def _subscribe(self, topic: str, name: str, type_name: str) -> None:
+        cb = (lambda data, n=name, t=type_name: self.on_message(n, t, data))
+        self.subs.append(self.create_subscription(message_class(type_name), topic, cb, STEP_QOS, raw=True))
+
+    def _subscribe_observations(self) -> None:
+        """Subscribe to the pending observation topics once this node knows their publishers and
+        has matched every publisher it knows of its other topics (or `observation_wait` s passed)."""
+        known = all(self.count_publishers(name) > 0 for _, name, _ in self.pending)
+        matched = all(s.get_publisher_count() >= self.count_publishers(s.topic_name) for s in self.subs)
+        waited = time.monotonic() - self.wait_started
+        if not (known and matched) and waited < self.observation_wait:
+            return
+        self.destroy_timer(self.pending_timer)
+        self.pending_timer = None
+        for topic, name, type_name in self.pending:
+            self._subscribe(topic, name, type_name)
+        self.pending = []
 
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         self.bag.write_cdr(topic, type_name, data, self.get_clock().now().nanoseconds)
