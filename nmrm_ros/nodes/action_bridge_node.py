@@ -19,6 +19,7 @@ from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters, exit_with_upstream, run_node
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
@@ -66,6 +67,9 @@ class ActionBridgeNode(Node):
             f"actions -> {self.kind.__name__} on {self.spec.action_topic} at {self.spec.action_rate:g} Hz "
             f"({'table of ' + str(len(self.spec.discrete)) + ' actions' if self.spec.discrete else 'fields ' + ', '.join(self.spec.continuous_fields)}); "
             f"zero twist after {self.spec.action_timeout:g} s without an action and at each episode's end")
+        self.diagnostics = Diagnostics(
+            self, lambda: {"dropped_actions": self.dropped, "safe_stops": self.stops},
+            warn=lambda: f"{self.dropped} action(s) dropped" if self.dropped else None)
 
     def on_action(self, msg: AgentAction) -> None:
         if self.stopped_for is not None and msg.episode <= self.stopped_for:

@@ -40,6 +40,7 @@ from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep, TrajectoryReturn
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.messages import as_vector
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, require_task, run_node)
@@ -122,6 +123,9 @@ class AgentNode(Node):
         self.sub = self.subs[0]
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.subs)
+        self.diagnostics = Diagnostics(
+            self, lambda: {"actions": self.sent, "dropped": self.dropped, "policy": self.policy},
+            rate_of="actions", warn=lambda: f"{self.dropped} observation(s) without an action" if self.dropped else None)
 
     def _load_sb3(self, path: str, algo: str):
         from pathlib import Path

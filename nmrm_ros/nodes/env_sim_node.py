@@ -40,6 +40,7 @@ from rclpy.node import Node
 from nmrm_msgs.msg import AgentAction, EnvObservation, TrajectoryReturn
 from ..tasks import NAVIGATION_TASKS
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.messages import as_vector, to_float_list
 from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node, subscribed_nodes
 from ..ros.topics import ACTION, FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
@@ -134,6 +135,10 @@ class EnvSimNode(Node):
                                f"{sorted(self.wait_for_nodes) or ''}")
 
     # -- lifecycle -----------------------------------------------------------------------------
+        self.diagnostics = Diagnostics(
+            self, lambda: {"episode": self.episode, "steps": self.steps_total, "abandoned_episodes": self.abandoned,
+                           "dropped_actions": self.dropped}, rate_of="steps", hardware_id=self.task,
+            warn=lambda: f"{self.abandoned_in_a_row} episode(s) abandoned in a row" if self.abandoned_in_a_row else None)
     def on_timer(self) -> None:
         now = time.monotonic()
         if not self.started:

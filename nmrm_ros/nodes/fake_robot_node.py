@@ -16,6 +16,7 @@ import time
 import numpy as np
 from rclpy.node import Node
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.node_main import EXIT_WITH_UPSTREAM, Param, declare_parameters, exit_with_upstream, run_node
 
 PARAMETERS = {
@@ -62,6 +63,7 @@ class FakeRobotNode(Node):
         self.create_timer(self.dt, self.on_tick)
         self.get_logger().info(f"a unicycle in a {delivery.SIZE:g} m box at {p['rate']:g} Hz: odom, scan, "
                                f"cmd_vel, ~/reset")
+        self.diagnostics = Diagnostics(self, lambda: {"resets": self.resets})
 
     def _start(self) -> tuple:
         return (*self.delivery.START, float(self.rng.uniform(-math.pi, math.pi)))

@@ -41,6 +41,7 @@ from collections import deque
 
 from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryPreference, TrajectoryReturn
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
 from ..datasets.label_noise import OnlineLabelSwapper
@@ -114,6 +115,11 @@ class LabellerOracleNode(Node):
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
+        self.diagnostics = Diagnostics(
+            self, lambda: {"steps": self.messages_received, "labelled_episodes": self.labelled,
+                           "comparisons": self.compared, "broken_episodes": self.follower.broken_episodes},
+            rate_of="steps",
+            warn=lambda: f"{self.follower.broken_episodes} broken episode(s)" if self.follower.broken_episodes else None)
 
     def log_broken(self, msg: EnvObservation, why: str) -> None:
         self.get_logger().warning(f"episode {msg.episode} not labelled "

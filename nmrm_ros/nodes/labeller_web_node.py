@@ -59,6 +59,7 @@ from rclpy.node import Node
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from sensor_msgs.msg import CompressedImage
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, live_parameter,
                              require_task, run_node)
@@ -179,6 +180,8 @@ class LabellerWebNode(Node):
                                    f"labels to {self.stores[person].path})")
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.sub)
+        self.diagnostics = Diagnostics(self, lambda: {"steps": self.messages_received,
+                                                     "finished_episodes": self.finished}, rate_of="steps")
 
     def _offer_waiting_episodes(self, max_episodes: int) -> None:
         """Queue the unlabelled episodes an earlier run of this node kept."""

@@ -26,6 +26,7 @@ from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.messages import to_float_list
 from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
 from ..ros.topics import OBSERVATION, STEP_QOS
@@ -99,6 +100,10 @@ class ObservationBridgeNode(Node):
         self.waiting = self.auto_start  # the first episode starts once the subscribers are there
 
     # -- inputs ------------------------------------------------------------------------------------
+        self.diagnostics = Diagnostics(
+            self, lambda: {"episode": self.episode, "stale_ticks": self.stale_ticks,
+                           **{f"dropped {i.topic}": n for i, n in zip(self.spec.inputs, self.dropped)}},
+            warn=lambda: f"{self.stale_ticks} stale tick(s)" if self.stale_ticks else None)
     def on_input(self, i: int, msg) -> None:
         try:
             values = self.spec.inputs[i].read(msg)

@@ -17,6 +17,7 @@ from rclpy.node import Node
 
 from ..bags.schemas import TOPIC_TYPES, split_topic
 from ..bags.writer import BagWriter
+from ..ros.diagnostics import Diagnostics
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, run_node)
 from ..ros.topics import STEP_QOS
@@ -83,6 +84,8 @@ class RecorderNode(Node):
         if p["exit_with_upstream"]:
             exit_with_upstream(self, self.subs)
         self.get_logger().info(f"recording {len(resolved)} topic(s) to {output}")
+        self.diagnostics = Diagnostics(self, lambda: {"messages": self.messages_received, "bag": output},
+                                       rate_of="messages")
 
     def _subscribe(self, topic: str, name: str, type_name: str) -> None:
         cb = (lambda data, n=name, t=type_name: self.on_message(n, t, data))

@@ -16,6 +16,7 @@ import time
 from rclpy.node import Node
 
 from ..bags.reader import BagError, bag_summary, iter_raw
+from ..ros.diagnostics import Diagnostics
 from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subscribed_nodes
 from ..ros.topics import STEP_QOS
 from .recorder_node import message_class
@@ -65,6 +66,8 @@ class ReplayNode(Node):
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"replaying {self.path}: {', '.join(self.topics)} "
                                f"(rate {self.rate or 'as fast as subscribers take'})")
+        self.diagnostics = Diagnostics(self, lambda: {"messages": self.published, "retries": self.retries},
+                                       rate_of="messages")
 
     def on_timer(self) -> None:
         if self.messages is not None:

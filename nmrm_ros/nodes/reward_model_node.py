@@ -39,6 +39,7 @@ from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation, RewardStep
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param, declare_parameters,
@@ -101,6 +102,10 @@ class RewardModelNode(Node):
             exit_with_upstream(self, self.sub)
         served = f", serving [s_t, {self.served}]" if mode == "model" else ""
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}{served}")
+        self.diagnostics = Diagnostics(
+            self, lambda: {"steps": self.messages_received, "broken_episodes": self.follower.broken_episodes,
+                           "mode": self.mode, "model": self.source}, rate_of="steps", hardware_id=self.task,
+            warn=lambda: f"{self.follower.broken_episodes} broken episode(s)" if self.follower.broken_episodes else None)
 
     def _load(self, path: str, task: str | None):
         """(online stepper, task info, '') of a checkpoint, or (None, None, why not)."""

@@ -38,6 +38,7 @@ from rclpy.parameter import Parameter
 
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
 from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
@@ -116,6 +117,8 @@ class TrainerNode(Node):
             f"{self._name(self.version + 1)} in {self.out_dir}, warm-started from {self.latest or 'nothing'}")
 
     # -- inputs ------------------------------------------------------------------------------------
+        self.diagnostics = Diagnostics(self, lambda: {"model_version": self.version, "new_labels": self.new_labels,
+                                                     "latest": self.latest or ""})
     def _wanted(self, labeller: str) -> bool:
         if not self.labellers:
             return True

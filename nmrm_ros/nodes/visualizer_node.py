@@ -18,12 +18,12 @@ own task without `xy=i/j`) gets the plottable topics and the diagnostics only.
 from __future__ import annotations
 
 import math
-import time
 
 from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation, RewardStep
 
+from ..ros.diagnostics import Diagnostics
 from ..ros.node_main import EXIT_WITH_UPSTREAM, Param, declare_parameters, exit_with_upstream, require_task, run_node
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
 
@@ -44,7 +44,6 @@ class VisualizerNode(Node):
         self.messages_received = 0
         super().__init__("visualizer")
         p = declare_parameters(self, PARAMETERS)
-        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import Path
         from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -67,18 +66,19 @@ class VisualizerNode(Node):
         self.reward_pub = self.create_publisher(Float32, VIZ + "reward", 10)
         self.std_pub = self.create_publisher(Float32, VIZ + "reward_std", 10)
         self.hidden_pub = self.create_publisher(Float32MultiArray, VIZ + "hidden", 10)
-        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.path = Path()
         self.path.header.frame_id = self.frame
         self.steps = self.episodes = self.broken = 0
         self.last = None  # (episode, step) of the last observation
         self.source = ""
-        self.window = (time.monotonic(), 0)
         subs = [self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS),
                 self.create_subscription(RewardStep, REWARD_STEP, self.on_reward, STEP_QOS)]
         if p["exit_with_upstream"]:
             exit_with_upstream(self, subs)
-        self.create_timer(1.0, self.on_diagnostics)
+        self.diagnostics = Diagnostics(
+            self, lambda: {"steps": self.steps, "episodes": self.episodes, "broken_episodes": self.broken,
+                           "model": self.source}, rate_of="steps", hardware_id=self.task,
+            warn=lambda: f"{self.broken} broken episode(s)" if self.broken else None)
         if self.arena is not None:
             self.arena_pub.publish(self.markers())
         self.get_logger().info(f"task {self.task}: {VIZ}* in frame {self.frame}"
@@ -148,23 +148,6 @@ class VisualizerNode(Node):
         self.reward_pub.publish(self.types["f32"](data=float(msg.reward)))
         self.std_pub.publish(self.types["f32"](data=float(msg.reward_std)))
         self.hidden_pub.publish(self.types["array"](data=[float(x) for x in msg.hidden]))
-
-    def on_diagnostics(self) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-
-        now, (since, steps) = time.monotonic(), self.window
-        rate = (self.steps - steps) / max(now - since, 1e-9)
-        self.window = (now, self.steps)
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name="nmrm: graph", hardware_id=self.task,
-                                  message=f"{rate:.1f} steps/s, serving {self.source or 'nothing yet'}")
-        if self.broken:
-            status.level = DiagnosticStatus.WARN
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in
-                         (("steps_per_second", f"{rate:.2f}"), ("steps", self.steps), ("episodes", self.episodes),
-                          ("broken_episodes", self.broken), ("model", self.source))]
-        out = DiagnosticArray(status=[status])
-        out.header.stamp = self.get_clock().now().to_msg()
-        self.diag_pub.publish(out)
 
 
 def main(args=None) -> int:
