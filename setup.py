@@ -31,6 +31,7 @@ EXECUTABLES = {
     "action_bridge": "nmrm_ros.nodes.action_bridge_node:main",
     "fake_robot": "nmrm_ros.nodes.fake_robot_node:main",
     "visualizer": "nmrm_ros.nodes.visualizer_node:main",
+    "foxglove_server": "nmrm_ros.nodes.foxglove_server_node:main",
 }
 
 SHIM = """#!/bin/sh
@@ -62,6 +63,7 @@ data_files = [
     (f"share/{PACKAGE}", ["package.xml"]),
     (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
     (f"share/{PACKAGE}/config/robots", sorted(glob("config/robots/*.yaml"))),
+    (f"share/{PACKAGE}/config/foxglove", sorted(glob("config/foxglove/*.json"))),
     (f"share/{PACKAGE}/launch_scripts", sorted(glob("launch_scripts/*"))),
 ]
 if _building_wheel():

@@ -8,7 +8,8 @@ import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
 #: every executable setup.py declares; a missing one must fail, not just give fewer cases
-EXPECTED_EXECUTABLES = ("action_bridge", "agent", "env_sim", "fake_robot", "labeller_oracle", "labeller_web",
+EXPECTED_EXECUTABLES = ("action_bridge", "agent", "env_sim", "fake_robot", "foxglove_server", "labeller_oracle",
+                        "labeller_web",
                         "nmrm", "observation_bridge", "recorder", "replay", "reward_model", "trainer", "visualizer")
 
 

@@ -241,9 +241,9 @@ def test_action_bridge_sends_twists_and_stops_safely(ros_domain, tmp_path):
 
 
 def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
-    """robot_bridge.launch.yaml with the fake unicycle (a faster spec: 40 Hz, 20 steps): 10
-    episodes recorded from Odometry, each labelled by the delivery oracle, the agent's actions
-    reaching the robot as twists; the graph ends by itself; a model trains on the bag."""
+    """robot_bridge.launch.yaml with the fake unicycle (a faster spec: 40 Hz, 20 steps) and the
+    Foxglove server: 10 episodes recorded from Odometry, each labelled by the delivery oracle, the
+    agent's actions reaching the robot as twists; the graph ends by itself; a model trains on the bag."""
     import subprocess
 
     from graph_helpers import executable
@@ -255,9 +255,11 @@ def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
     (tmp_path / "fast.yaml").write_text(spec)
     res = subprocess.run([executable("nmrm"), "launch", str(root / "launch_scripts" / "robot_bridge.launch.yaml"),
                           f"spec:={tmp_path / 'fast.yaml'}", "episodes:=10", f"out:={tmp_path / 'bag'}",
-                          "task:=nmrm_ros.robots.delivery:DeliveryEnv,max_steps=20,xy=0/1"],
+                          "task:=nmrm_ros.robots.delivery:DeliveryEnv,max_steps=20,xy=0/1",
+                          "foxglove:=true", "foxglove_port:=0"],
                          capture_output=True, text=True, timeout=240)
-    assert res.returncode == 0 and "all 8 node(s) exited cleanly" in res.stdout, res.stdout[-3000:] + res.stderr
+    assert res.returncode == 0 and "all 9 node(s) exited cleanly" in res.stdout, res.stdout[-3000:] + res.stderr
+    assert "serving /nmrm/viz/arena" in res.stdout  # the Foxglove server came and went with the graph
     ds, report = load_bag_dataset([tmp_path / "bag"])
     assert report.episodes_used == 10 and ds.state_size == 3 and set(ds.lengths) == {20}, str(report)
     assert "episode end stop(s), 0 action(s) dropped" in res.stdout, res.stdout[-2000:]
@@ -306,7 +308,7 @@ def test_the_visualizer_publishes_standard_topics(ros_domain):
             rew.publish(RewardStep(episode=0, step=t, reward=0.25 * t, hidden=[0.5, -0.5], source="key_v001"))
             capture.spin_for(0.05)
         assert capture.spin_until(lambda: len(got["path"]) >= 5 and len(got["hidden"]) >= 5, 10)
-        assert capture.spin_until(lambda: any(s.values and s.values[-1].value == "key_v001"
+        assert capture.spin_until(lambda: any({kv.key: kv.value for kv in s.values}.get("model") == "key_v001"
                                               for d in got["diag"] for s in d.status), 5)
         viz.send_signal(signal.SIGINT)
         code, out = finish(viz)
@@ -335,3 +337,45 @@ def test_nmrm_launch_honours_node_conditions(tmp_path):
     assert "fake_robot" not in names({"fake_robot": "false"}) and "observation_bridge" in names({"fake_robot": "0"})
     with pytest.raises(LaunchError, match="is not true, false, 1 or 0"):
         names({"fake_robot": "maybe"})
+
+
+def test_every_node_reports_on_diagnostics(ros_domain, tmp_path):
+    """Each node, started on its own, publishes its status on /diagnostics once a second: named
+    `nmrm: /<node>`, with its counters as key/values (and a rate for the one it counts)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from graph_helpers import Capture, finish, start
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    spec = str(root / "config" / "robots" / "fake_delivery.yaml")
+    delivery = "nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1"
+    nodes = {
+        "env_sim": dict(task="key", wait_for_subscribers=9, startup_timeout=60.0),
+        "reward_model": dict(task="key", mode="oracle"),
+        "labeller_oracle": dict(task="key"),
+        "agent": dict(task="key"),
+        "recorder": dict(output=str(tmp_path / "bag")),
+        "visualizer": dict(task="key"),
+        "trainer": dict(task="key", out_dir=str(tmp_path / "trainer")),
+        "labeller_web": dict(task="key", port=0, labels_dir=str(tmp_path / "labels")),
+        "observation_bridge": dict(spec=spec, task=delivery, auto_start=False),
+        "action_bridge": dict(spec=spec),
+        "fake_robot": dict(),
+    }
+    capture = Capture()
+    seen: dict = {}
+    capture.node.create_subscription(
+        DiagnosticArray, "/diagnostics",
+        lambda m: seen.update({s.name: {kv.key: kv.value for kv in s.values} for s in m.status}), 50)
+    procs = {name: start(name, **params) for name, params in nodes.items()}
+    try:
+        names = {f"nmrm: /{name}" for name in nodes}
+        assert capture.spin_until(lambda: names <= set(seen), 60), sorted(set(seen))
+    finally:
+        for p in procs.values():
+            p.send_signal(signal.SIGINT)
+        outs = {name: finish(p) for name, p in procs.items()}
+        capture.close()
+    assert all(code == 0 for code, _ in outs.values()), {n: o[-1500:] for n, (c, o) in outs.items() if c}
+    assert seen["nmrm: /env_sim"]["steps_per_second"] == "0.00" and seen["nmrm: /reward_model"]["mode"] == "oracle"
+    assert seen["nmrm: /trainer"]["model_version"] == "0" and "dropped /odom" in seen["nmrm: /observation_bridge"]

@@ -1,0 +1,1 @@
+"""Viewing a running graph from outside ROS: the Foxglove WebSocket server."""
