@@ -61,8 +61,12 @@ def train_repeat(arch: str, ds, held, r: int, cfg) -> tuple:
 
 
 def run_repeat(job: tuple) -> dict:
-    """Train and score repeat r of `task`; writes and returns its result."""
+    """Train and score repeat r of `task`; writes and returns its result (or reads it, when another
+    process of the same tag finished it since this one started: sittings may run side by side)."""
     task, r, overrides, out = job
+    done = out / f"{task}_r{r}.json"
+    if done.is_file():
+        return json.loads(done.read_text())
     import torch
 
     torch.set_num_threads(1)
