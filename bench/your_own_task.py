@@ -3,9 +3,13 @@
     .venv/bin/python bench/your_own_task.py models --repeats 5 --jobs 2
     .venv/bin/python bench/your_own_task.py agents --seeds 0 1 2 --jobs 2
     .venv/bin/python bench/your_own_task.py --report
+    # any task and oracle, results in bench/results/your_own_task/NAME/ (e.g. the fake robot's delivery):
+    .venv/bin/python bench/your_own_task.py models --name delivery --repeats 3 \
+        --task "nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1" --oracle nmrm_ros.robots.delivery:oracle
 
-Task `gym:CartPole-v1,max_episode_steps=200`; oracle examples/cartpole_crossings.py:oracle (a step
-pays 1 once the cart has crossed the centre line in both directions). Datasets are screened by
+Default task `gym:CartPole-v1,max_episode_steps=200`; oracle examples/cartpole_crossings.py:oracle (a
+step pays 1 once the cart has crossed the centre line in both directions); --task/--oracle/--name
+measure any other. Datasets are screened by
 return bins from random-policy pools (nmrm_ros.datasets.return_screening); episodes vary in length.
 
 models: repeat r trains the CSC LSTM and the Markovian Instance Space NN (config your_own_task:
@@ -26,6 +30,7 @@ import json
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,79 +43,97 @@ RESULTS = ROOT / "bench" / "results" / "your_own_task"
 DATA = ROOT / "runs" / "your_own_task"
 TASK = "gym:CartPole-v1,max_episode_steps=200"
 ORACLE = str(ROOT / "examples" / "cartpole_crossings.py") + ":oracle"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What is measured and where it goes (the CartPole example, or --task/--oracle/--name)."""
+    task: str = TASK
+    oracle: str = ORACLE
+    name: str = ""  # results in RESULTS/NAME/, data in DATA/NAME/ ("": the CartPole example's own)
+
+    @property
+    def results(self) -> Path:
+        return RESULTS / self.name if self.name else RESULTS
+
+    @property
+    def data(self) -> Path:
+        return DATA / self.name if self.name else DATA
 N, HELD_OUT_SEED, HELD_OUT_N = 2000, 999, 1000
 ARCHS = ("csc_lstm", "instance_nn")
 REWARDS = ("model", "oracle", "oracle-no-hidden")
 
 
-def dataset(n: int, seed: int):
-    """The screened dataset of data seed `seed`, cached in runs/your_own_task/."""
+def dataset(setting: Setting, n: int, seed: int):
+    """The screened dataset of data seed `seed`, cached in the setting's data directory."""
     from nmrm_ros.datasets import TrajectoryDataset, generate_screened
 
-    path = DATA / f"cartpole_n{n}_s{seed}.npz"
+    path = setting.data / f"{setting.name or 'cartpole'}_n{n}_s{seed}.npz"
     if path.is_file():
         return TrajectoryDataset.load(path)
-    ds = generate_screened(TASK, n, seed=seed, oracle=ORACLE)
-    DATA.mkdir(parents=True, exist_ok=True)
+    ds = generate_screened(setting.task, n, seed=seed, oracle=setting.oracle)
+    setting.data.mkdir(parents=True, exist_ok=True)
     ds.save(path)
     return ds
 
 
-def checkpoint_path(arch: str, r: int) -> Path:
-    return DATA / "models" / f"{arch}_r{r}"
+def checkpoint_path(setting: Setting, arch: str, r: int) -> Path:
+    return setting.data / "models" / f"{arch}_r{r}"
 
 
 def run_model(job: tuple) -> dict:
-    arch, r = job
+    setting, arch, r = job
     import torch
 
     torch.set_num_threads(1)
     from nmrm_ros.mil import load_train_config, save_checkpoint
 
-    ds, held = dataset(N, r), dataset(HELD_OUT_N, HELD_OUT_SEED)
-    cfg = load_train_config(TASK, seed=r)
+    ds, held = dataset(setting, N, r), dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
+    cfg = load_train_config(setting.task, seed=r)
     ens, result, seconds, on_test, on_held = train_repeat(arch, ds, held, r, cfg)
     seeds = ens_seeds(r, cfg)
-    path = checkpoint_path(arch, r)
+    path = checkpoint_path(setting, arch, r)
     path.parent.mkdir(parents=True, exist_ok=True)
-    save_checkpoint(ens, path, task=TASK, ensemble={"members": len(seeds), "seeds": seeds, "serving_member": 0})
+    save_checkpoint(ens, path, task=setting.task, ensemble={"members": len(seeds), "seeds": seeds, "serving_member": 0})
     res = {"arch": arch, "repeat": r, "data_seed": r, "n": N, "weight_seeds": seeds,
            "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
            "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],
            "held_reward_mse": on_held["reward_mse"], "epochs": result.epochs_run,
            "best_epochs": result.best_epochs, "seconds": seconds, "checkpoint": str(path)}
-    (RESULTS / f"model_{arch}_r{r}.json").write_text(json.dumps(res, indent=1))
+    (setting.results / f"model_{arch}_r{r}.json").write_text(json.dumps(res, indent=1))
     return res
 
 
 def run_agent(job: tuple) -> dict:
-    reward, seed = job
+    setting, reward, seed = job
     import torch
 
     torch.set_num_threads(1)
     from nmrm_ros.rl import evaluate_agent, train_agent
 
-    checkpoint = checkpoint_path("csc_lstm", 0) if reward == "model" else None
-    out = DATA / "agents" / f"{reward}_s{seed}"
+    checkpoint = checkpoint_path(setting, "csc_lstm", 0) if reward == "model" else None
+    out = setting.data / "agents" / f"{reward}_s{seed}"
     t0 = time.perf_counter()
-    run = train_agent(TASK, reward, checkpoint=checkpoint, seed=seed, out=out, progress=False, oracle=ORACLE)
+    run = train_agent(setting.task, reward, checkpoint=checkpoint, seed=seed, out=out, progress=False,
+                      oracle=setting.oracle)
     seconds = time.perf_counter() - t0
-    result = evaluate_agent(out / "policy.zip", TASK, checkpoint=checkpoint)
+    result = evaluate_agent(out / "policy.zip", setting.task, checkpoint=checkpoint, oracle=setting.oracle)
     res = {"reward": reward, "seed": seed, "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
            "seconds": seconds, "policy": str(out / "policy.zip")}
-    (RESULTS / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
+    (setting.results / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
     return res
 
 
-def report() -> str:
-    lines = [f"# bench/your_own_task.py: task {TASK}, oracle examples/cartpole_crossings.py:oracle",
+def report(setting: Setting) -> str:
+    oracle = "examples/cartpole_crossings.py:oracle" if setting.oracle == ORACLE else setting.oracle
+    lines = [f"# bench/your_own_task.py: task {setting.task}, oracle {oracle}",
              f"# models: repeat r on data seed r ({N} episodes, split r); held-out: {HELD_OUT_N} episodes of "
              f"data seed {HELD_OUT_SEED}; mean ± SEM [worst]",
              f"{'model':12s} {'n':>2s} {'held-out return MSE':>26s} {'held-out reward MSE':>26s} "
              f"{'test return MSE':>24s} {'s/run':>6s}"]
     for arch in ARCHS:
-        runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob(f"model_{arch}_r*.json"))]
+        runs = [json.loads(p.read_text()) for p in sorted(setting.results.glob(f"model_{arch}_r*.json"))]
         if not runs:
             continue
         cells = []
@@ -121,7 +144,7 @@ def report() -> str:
         lines.append(f"{arch:12s} {len(runs):2d} {' '.join(cells)} {np.mean([r['seconds'] for r in runs]):6.0f}")
     lines.append("# agents: greedy oracle return over 50 episodes (seeds 10^8..); mean [worst] over agent seeds")
     for reward in REWARDS:
-        runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob(f"agent_{reward}_s*.json"))]
+        runs = [json.loads(p.read_text()) for p in sorted(setting.results.glob(f"agent_{reward}_s*.json"))]
         if not runs:
             continue
         v = [r["greedy_oracle_return"] for r in runs]
@@ -138,17 +161,25 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true")
+    parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
+    parser.add_argument("--oracle", default=ORACLE, help="oracle <module>:<function> or <file.py>:<function>")
+    parser.add_argument("--name", default="", help="results in bench/results/your_own_task/NAME/ (needed with --task)")
     args = parser.parse_args()
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    if (args.task, args.oracle) != (TASK, ORACLE) and not args.name:
+        raise SystemExit("give --name for another task or oracle (its results go to bench/results/your_own_task/NAME/)")
+    setting = Setting(args.task, args.oracle, args.name)
+    results = setting.results
+    results.mkdir(parents=True, exist_ok=True)
     if args.what == "models":
-        dataset(HELD_OUT_N, HELD_OUT_SEED)
-        jobs = [(a, r) for r in range(args.repeats) for a in ARCHS
-                if not (RESULTS / f"model_{a}_r{r}.json").is_file()]
+        dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
+        jobs = [(setting, a, r) for r in range(args.repeats) for a in ARCHS
+                if not (results / f"model_{a}_r{r}.json").is_file()]
         fn = run_model
     elif args.what == "agents":
-        if not (RESULTS / "model_csc_lstm_r0.json").is_file():
+        if not (results / "model_csc_lstm_r0.json").is_file():
             raise SystemExit("train the models first (at least repeat 0): bench/your_own_task.py models")
-        jobs = [(w, s) for s in args.seeds for w in REWARDS if not (RESULTS / f"agent_{w}_s{s}.json").is_file()]
+        jobs = [(setting, w, s) for s in args.seeds for w in REWARDS
+                if not (results / f"agent_{w}_s{s}.json").is_file()]
         fn = run_agent
     else:
         jobs, fn = [], None
@@ -157,9 +188,9 @@ def main() -> None:
         with ProcessPoolExecutor(args.jobs) as pool:
             for res in pool.map(fn, jobs):
                 print(f"  {json.dumps({k: v for k, v in res.items() if not isinstance(v, (list, dict))})}", flush=True)
-    text = report()
+    text = report(setting)
     print(text)
-    (RESULTS / "table.txt").write_text(text + "\n")
+    (results / "table.txt").write_text(text + "\n")
 
 
 if __name__ == "__main__":
