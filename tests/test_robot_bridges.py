@@ -379,3 +379,55 @@ def test_every_node_reports_on_diagnostics(ros_domain, tmp_path):
     assert all(code == 0 for code, _ in outs.values()), {n: o[-1500:] for n, (c, o) in outs.items() if c}
     assert seen["nmrm: /env_sim"]["steps_per_second"] == "0.00" and seen["nmrm: /reward_model"]["mode"] == "oracle"
     assert seen["nmrm: /trainer"]["model_version"] == "0" and "dropped /odom" in seen["nmrm: /observation_bridge"]
+
+
+def test_a_person_labels_the_robots_episodes(ros_domain, tmp_path):
+    """robot_bridge.launch.yaml label:=true: the fake robot's episodes wait on the labelling page
+    (all three, the first included: subscribers:=6); a label posted to the page's API is in the
+    person's labels bag beside the oracle's; the page keeps the graph up until Ctrl-C."""
+    import os
+    import subprocess
+    import threading
+
+    from graph_helpers import executable
+    from nmrm_ros.bags import iter_decoded
+    from nmrm_ros.labelling.client import PageClient
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    spec = (root / "config" / "robots" / "fake_delivery.yaml").read_text()
+    (tmp_path / "fast.yaml").write_text(spec.replace("rate: 10.0", "rate: 40.0").replace("max_steps: 200", "max_steps: 20"))
+    out = tmp_path / "robot"
+    proc = subprocess.Popen([executable("nmrm"), "launch", str(root / "launch_scripts" / "robot_bridge.launch.yaml"),
+                             f"spec:={tmp_path / 'fast.yaml'}", "episodes:=3", f"out:={out}", "label:=true",
+                             "subscribers:=6", "port:=0", "person:=dana",
+                             "task:=nmrm_ros.robots.delivery:DeliveryEnv,max_steps=20,xy=0/1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    lines: list = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+
+    def wait_for(text: str, count: int = 1, timeout: float = 90.0) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = [line for line in list(lines) if text in line]
+            if len(found) >= count:
+                return found[count - 1]
+            time.sleep(0.2)
+        raise AssertionError(f"no {count} x {text!r} in\n{''.join(lines)}")
+
+    try:
+        url = wait_for("labelling page: ").split("labelling page: ")[1].split()[0]
+        wait_for("waits for a label", count=3)
+        page = PageClient(url)
+        queue = page.get("/api/queue")["episodes"]
+        assert sorted(e["episode"] for e in queue) == [0, 1, 2], queue
+        page.post("/api/label", {"episode": 1, "return": 3.5})
+        wait_for("labelled 3 episode(s)")  # the oracle labeller too, then it leaves with the robot
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(60)
+        reader.join(10)
+    text = "".join(lines)
+    assert code == 130 and "interrupted by SIGINT" in text, text[-3000:]
+    labels = [m for bag in out.parent.glob("robot_labels/person_*") for _, _, _, m in iter_decoded(bag)]
+    assert [(m.episode, m.return_value, m.labeller) for m in labels] == [(1, 3.5, "person/dana")]
