@@ -29,7 +29,7 @@ from nmrm_msgs.msg import EnvObservation
 from ..ros.diagnostics import Diagnostics
 from ..ros.messages import to_float_list
 from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
-from ..ros.topics import OBSERVATION, STEP_QOS
+from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
     "spec": Param("", "robot spec YAML (observation:, episode:, action: sections; see nmrm_ros.ros.robot_spec)"),
@@ -39,6 +39,8 @@ PARAMETERS = {
     "auto_start": Param(True, "start episodes by themselves (false: by the ~/start_episode service)"),
     "reset_timeout": Param(10.0, "seconds to wait for the reset service between episodes", 0.0),
     "wait_for_subscribers": Param(0, "auto_start: the first episode waits for this many observation subscribers", 0),
+    "wait_for_agent": Param(False, "auto_start: the first episode also waits for a publisher of nmrm/action (an agent "
+                                   "that is ready to act: a learning agent starts late)"),
     "start_delay": Param(0.0, "seconds to wait once they are there, so late endpoints of other nodes match", 0.0),
 }
 
@@ -81,6 +83,8 @@ class ObservationBridgeNode(Node):
         self.reset_future = None
         self.wrong_size_warned = False  # the state size is checked on the first full sample
         self.wait_for = int(p["wait_for_subscribers"])
+        self.wait_for_agent = bool(p["wait_for_agent"])
+        self.action_topic = self.resolve_topic_name(ACTION)
         self.start_delay = float(p["start_delay"])
         self.ready_at = None  # auto_start: when the subscribers were there
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
@@ -171,6 +175,8 @@ class ObservationBridgeNode(Node):
     def on_tick(self) -> None:
         if self.waiting:
             if self.pub.get_subscription_count() < self.wait_for:
+                return
+            if self.wait_for_agent and self.count_publishers(self.action_topic) < 1:
                 return
             self.ready_at = self.ready_at or time.monotonic()
             if time.monotonic() - self.ready_at < self.start_delay:
