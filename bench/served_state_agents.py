@@ -42,7 +42,7 @@ def model_stem(work: Path, task: str, data_seed: int) -> Path:
 
 def train_model(job: tuple) -> dict:
     """Train (or reuse) the task's CSC model; its test metrics."""
-    work, task, data_seed = job
+    work, task, data_seed, overrides = job
     import torch
 
     torch.set_num_threads(1)
@@ -54,7 +54,7 @@ def train_model(job: tuple) -> dict:
     if out.with_suffix(".json").is_file():
         return json.loads(out.with_suffix(".json").read_text())["metrics"]
     ds = generate_screened(task, 5000, seed=data_seed)
-    cfg = load_train_config(task, seed=data_seed)
+    cfg = load_train_config(task, seed=data_seed, **overrides)
     source = f"screened:{task}:n=5000:seed={data_seed}"
     if cfg.members > 1:
         run = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=data_seed,
@@ -127,10 +127,15 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--work", type=Path, default=ROOT / "runs" / "served_state_agents")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "served_state_agents.txt")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="training-config overrides of the models (use a --work of their own)")
     args = parser.parse_args()
+    from reproduce_tables import parse_overrides
+
+    overrides = parse_overrides(args.set)
     start = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
-        models = dict(zip(args.tasks, pool.map(train_model, [(args.work, t, args.data_seed) for t in args.tasks])))
+        models = dict(zip(args.tasks, pool.map(train_model, [(args.work, t, args.data_seed, overrides) for t in args.tasks])))
         jobs = [(args.work, t, args.data_seed, k, s, args.episodes) for t in args.tasks for s in args.seeds
                 for k in args.kinds]
         results = []
@@ -141,8 +146,9 @@ def main() -> None:
     text = report(results, models, args.tasks)
     print(text)
     print(f"# wall time {time.perf_counter() - start:.0f} s")
-    args.out.write_text(text + f"\n# {' '.join(['bench/served_state_agents.py', '--tasks', *args.tasks])}, "
-                        f"seeds {args.seeds}, data seed {args.data_seed}\n")
+    command = ['bench/served_state_agents.py', '--tasks', *args.tasks, '--kinds', *args.kinds]
+    command += ['--set', *args.set] if args.set else []
+    args.out.write_text(text + f"\n# {' '.join(command)}, seeds {args.seeds}, data seed {args.data_seed}\n")
     args.out.with_suffix(".json").write_text(json.dumps({"models": models, "agents": results}, indent=1))
 
 
