@@ -159,6 +159,7 @@ def main() -> None:
     parser.add_argument("what", nargs="?", choices=("models", "agents"))
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--rewards", nargs="*", default=list(REWARDS), choices=REWARDS, help="agents: which rewards")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true")
     parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
@@ -178,7 +179,7 @@ def main() -> None:
     elif args.what == "agents":
         if not (results / "model_csc_lstm_r0.json").is_file():
             raise SystemExit("train the models first (at least repeat 0): bench/your_own_task.py models")
-        jobs = [(setting, w, s) for s in args.seeds for w in REWARDS
+        jobs = [(setting, w, s) for s in args.seeds for w in args.rewards
                 if not (results / f"agent_{w}_s{s}.json").is_file()]
         fn = run_agent
     else:
