@@ -258,3 +258,18 @@ def test_team_comparisons_are_reported_and_recorded_as_provenance(tmp_path):
     assert report.comparisons_used == 3 and len(data.meta["comparisons"]) == 3
     assert {(r["a"], r["b"], r["p"], r["labeller"]) for r in data.meta["comparisons"]} == \
         {(a, b, p, "person/alice") for a, b, p in answers["person/alice"]}
+
+
+def test_deduplicating_compared_only_episodes_keeps_their_comparisons():
+    """Two copies of an episode that was only compared (return NaN) are one episode, and a
+    comparison that named the dropped copy names the kept one (it was dropped with it before)."""
+    from dataclasses import replace
+
+    ds = make_toy_dataset("toggle_switch", 3, seed=0)
+    ds = replace(ds, returns=np.full(3, np.nan), preferences=None)
+    twice = concatenate([ds, ds])  # episodes 3, 4, 5 repeat 0, 1, 2
+    twice = replace(twice, preferences=np.array([[0.0, 1.0, 1.0], [4.0, 2.0, 0.0], [3.0, 0.0, 0.5]]))
+    out, dropped = twice.deduplicated()
+    assert dropped == 3 and len(out) == 3
+    # 0 vs 1 stays; 4 vs 2 is 1 vs 2; 3 vs 0 is an episode against itself: no comparison
+    assert out.preferences.tolist() == [[0.0, 1.0, 1.0], [1.0, 2.0, 0.0]]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -77,20 +77,27 @@ class TrajectoryDataset:
     def deduplicated(self) -> tuple["TrajectoryDataset", int]:
         """(this dataset without repeated episodes, how many were dropped). Two episodes are the
         same when their states (s_0..s_len, the final observation included) and their label are
-        equal, bit for bit; the first one is kept. Used where bags from different sources are
-        merged, so that one episode cannot be in both the training and the test split."""
-        seen: set = set()
-        keep = []
+        equal, bit for bit (so two compared-only episodes, return NaN, are the same too); the first
+        one is kept, and a comparison that named a dropped copy names the kept one. Used where
+        bags from different sources are merged, so that one episode cannot be in both the training
+        and the test split."""
+        first: dict = {}
+        same_as = np.arange(len(self), dtype=np.int64)  # each episode -> its first copy
         for i in range(len(self)):
             n = int(self.lengths[i])
-            key = (self.states[i, :n].tobytes(), float(self.returns[i]),
+            key = (self.states[i, :n].tobytes(), self.returns[i].tobytes(),
                    None if self.final_states is None else self.final_states[i].tobytes())
-            if key not in seen:
-                seen.add(key)
-                keep.append(i)
+            same_as[i] = first.setdefault(key, i)
+        keep = np.flatnonzero(same_as == np.arange(len(self)))
         if len(keep) == len(self):
             return self, 0
-        return self.subset(np.asarray(keep, dtype=np.int64)), len(self) - len(keep)
+        source = self
+        if self.preferences is not None:
+            prefs = self.preferences.copy()
+            prefs[:, 0] = same_as[prefs[:, 0].astype(np.int64)]
+            prefs[:, 1] = same_as[prefs[:, 1].astype(np.int64)]
+            source = replace(self, preferences=prefs[prefs[:, 0] != prefs[:, 1]])
+        return source.subset(keep), len(self) - len(keep)
 
     def save(self, path: str | Path) -> Path:
         """Write an .npz (arrays) with the task and meta as JSON inside. Written to a temporary
