@@ -337,3 +337,15 @@ def test_replay_at_recorded_timing(capture, tmp_path):
     assert 0.07 < elapsed < 1.0, elapsed
     assert [m.step for m in capture.msgs["observation"]] == list(range(101))
     assert capture.msgs["action"] == [] and capture.msgs["label"] == []  # filtered out
+
+
+def test_a_recording_of_nothing_leaves_no_bag(ros_domain, tmp_path):
+    """A recorder stopped before any message came (the rest of a launch failed at start) removes
+    the bag it created, so the same command can run again; one with messages keeps its bag."""
+    out = tmp_path / "nothing"
+    rec = start("recorder", output=str(out), observation_wait=0.0)
+    time.sleep(2.0)
+    rec.send_signal(signal.SIGINT)
+    code, log = finish(rec)
+    assert code == 0 and "recorded nothing: removed the empty bag" in log, log
+    assert not out.exists()

@@ -5,13 +5,15 @@ schemas embedded): `ros2 bag info/play`, Foxglove, the `mcap` CLI and `rosbags` 
 message is logged at its receive time. Ctrl-C / SIGTERM close the bag cleanly. Every
 `flush_period` s the chunk in progress is ended and the file flushed to disk, so after a hard kill
 `nmrm bag repair OUTPUT` recovers everything received up to `flush_period` s before it. On close it logs how many messages it wrote and its own write
-rate (messages over the time from its first to its last write).
+rate (messages over the time from its first to its last write). A recording of nothing (e.g. the
+rest of a launch failed at start) is removed at close, so it leaves no empty bag in the way.
 """
 
 from __future__ import annotations
 
 import importlib
 import time
+from pathlib import Path
 
 from rclpy.node import Node
 
@@ -58,6 +60,7 @@ class RecorderNode(Node):
                 resolved[t] = (name, split_topic(name)[1])
             except ValueError as exc:
                 raise NodeError(f"cannot record {t!r}: {exc}") from None
+        self.created_dir = not Path(output).exists()  # so an empty recording can be removed whole
         try:
             self.bag = BagWriter(output, chunk_size=int(p["chunk_size"]))
         except (FileExistsError, OSError) as exc:
@@ -123,6 +126,13 @@ class RecorderNode(Node):
     def close(self) -> None:
         if self.bag is not None and not self.bag.closed:
             self.bag.close()
+            if self.messages_received == 0:  # e.g. the rest of a launch failed at start: leave no debris
+                for name in (self.bag.file_name, "metadata.yaml"):
+                    (self.bag.path / name).unlink(missing_ok=True)
+                if self.created_dir and not any(self.bag.path.iterdir()):
+                    self.bag.path.rmdir()
+                self.get_logger().info(f"recorded nothing: removed the empty bag {self.bag.path}")
+                return
             counts = ", ".join(f"{t} {n}" for t, n in self.bag.counts.items())
             self.get_logger().info(f"closed {self.bag.path}: {self.messages_received} messages ({counts}); "
                                    f"{self.write_rate()}")
