@@ -117,3 +117,58 @@ def test_the_layout_shows_only_topics_the_graph_publishes():
     viz = (ROOT / "nmrm_ros" / "nodes" / "visualizer_node.py").read_text()
     published = {t for t in named if t.startswith("/nmrm/viz/") and t.removeprefix("/nmrm/viz/") in viz}
     assert published == {t for t in named if t.startswith("/nmrm/viz/")}
+
+
+async def _first_message(port: int, topic: str) -> tuple:
+    """Connect, subscribe to `topic` once advertised; (its channel, the first message's payload)."""
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(f"ws://127.0.0.1:{port}/?token={TOKEN}",
+                                      protocols=("foxglove.websocket.v1",)) as ws:
+            channels: dict = {}
+            deadline = time.monotonic() + 60
+            while topic not in channels and time.monotonic() < deadline:
+                data = json.loads((await ws.receive(timeout=60)).data)
+                if data["op"] == "advertise":
+                    channels.update({c["topic"]: c for c in data["channels"]})
+            await ws.send_json({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels[topic]["id"]}]})
+            while True:
+                msg = await ws.receive(timeout=30)
+                if msg.type == aiohttp.WSMsgType.BINARY:
+                    return channels[topic], bytes(msg.data[13:])
+
+
+def test_a_recorded_bag_is_watched_through_the_same_server(ros_domain, tmp_path):
+    """watch_bag.launch.yaml: a bag of Key episodes, replayed in a loop, becomes the visual topics
+    the layout shows (the agent's pose in the map frame), served by the Foxglove server."""
+    import os
+    import subprocess
+
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.serialization import deserialize_message
+
+    from graph_helpers import executable
+
+    bag = tmp_path / "key_bag"
+    made = subprocess.run([executable("nmrm"), "dataset", "generate", "--task", "key", "--episodes", "3",
+                           "--out", str(bag)], capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stdout + made.stderr
+    port = _free_port()
+    proc = subprocess.Popen([executable("nmrm"), "launch", str(ROOT / "launch_scripts" / "watch_bag.launch.yaml"),
+                             f"bag:={bag}", "task:=key", "rate:=0.0", "loop:=true", f"port:={port}",
+                             f"token:={TOKEN}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.2)
+        channel, payload = asyncio.run(_first_message(port, "/nmrm/viz/pose"))
+        pose = deserialize_message(payload, PoseStamped)
+        assert channel["schemaName"] == "geometry_msgs/msg/PoseStamped" and pose.header.frame_id == "map"
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "interrupted by SIGINT: 3 node(s) stopped" in out, out[-3000:]
