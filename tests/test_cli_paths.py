@@ -9,8 +9,8 @@ import signal
 from pathlib import Path
 
 import pytest
-import typer
 
+from cli_tree import leaf_commands
 from nmrm_ros.cli import app
 from test_cli_properties import run_nmrm
 
@@ -58,20 +58,8 @@ BAD_OUTPUTS = ("under a file", "not creatable")
 
 
 def path_options() -> set:
-    found = set()
-
-    def walk(command, path):
-        if hasattr(command, "commands"):
-            for name, sub in command.commands.items():
-                walk(sub, (*path, name))
-            return
-        for p in command.params:
-            kind = p.type_descriptor.annotation
-            if kind is Path or kind == list[Path]:
-                found.add((path, p.opts[0] if p.opts else p.name))
-
-    walk(typer.main.get_command(app), ())
-    return found
+    return {(path, p.opts[0] if p.opts else p.name) for path, command in leaf_commands(app) for p in command.params
+            if p.type_descriptor.annotation is Path or p.type_descriptor.annotation == list[Path]}
 
 
 def test_every_path_option_is_covered():

@@ -11,10 +11,10 @@ import signal
 import sys
 
 import pytest
-import typer
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cli_tree import leaf_commands
 from nmrm_ros.cli import app, main
 
 # numeric options checked after parsing, and by what
@@ -25,20 +25,8 @@ CHECKED_ELSEWHERE = {("train", "--lr"): "TrainConfig.check (lr > 0, exit 2)",
 
 def numeric_options() -> list[tuple[tuple[str, ...], str, type, float | None, float | None]]:
     """(command path, option, int | float, min, max) of every numeric option of the app."""
-    found = []
-
-    def walk(command, path):
-        if hasattr(command, "commands"):
-            for name, sub in command.commands.items():
-                walk(sub, (*path, name))
-            return
-        for p in command.params:
-            kind = p.type_descriptor.annotation
-            if kind in (int, float) and p.opts:
-                found.append((path, p.opts[0], kind, p.min, p.max))
-
-    walk(typer.main.get_command(app), ())
-    return found
+    return [(path, p.opts[0], p.type_descriptor.annotation, p.min, p.max) for path, command in leaf_commands(app)
+            for p in command.params if p.type_descriptor.annotation in (int, float) and p.opts]
 
 
 OPTIONS = numeric_options()

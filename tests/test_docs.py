@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 
 import pytest
-import typer
+
+from cli_tree import leaf_commands
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,20 +76,11 @@ def test_every_cli_option_is_in_the_reference(site):
 
     text = page_text(site, "reference/cli")
     missing = []
-
-    def walk(command, path):
-        if hasattr(command, "commands"):
-            for name, sub in command.commands.items():
-                walk(sub, (*path, name))
-            return
+    for path, command in leaf_commands(app):
         if f"nmrm {' '.join(path)}" not in text:
             missing.append(" ".join(path))
-        for p in command.params:
-            for opt in p.opts:
-                if opt.startswith("--") and opt not in text:
-                    missing.append(f"{' '.join(path)} {opt}")
-
-    walk(typer.main.get_command(app), ())
+        missing += [f"{' '.join(path)} {opt}" for p in command.params for opt in p.opts
+                    if opt.startswith("--") and opt not in text]
     assert not missing, missing
 
 
