@@ -148,3 +148,27 @@ def episodes_of(observations: list) -> dict:
         out.setdefault(m.episode, []).append(m)
     return {e: (np.array([list(m.state) for m in ms], np.float32), [m.step for m in ms],
                 [(m.terminated, m.truncated) for m in ms]) for e, ms in out.items()}
+
+
+class OutputLines:
+    """The output of a running process, read line by line in a thread: `wait_for(text)` returns
+    the `count`-th line containing `text` (or fails with all the output so far)."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        import threading
+
+        self.lines: list = []
+        self.reader = threading.Thread(target=lambda: self.lines.extend(proc.stdout), daemon=True)
+        self.reader.start()
+
+    def wait_for(self, text: str, count: int = 1, timeout: float = 90.0) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = [line for line in list(self.lines) if text in line]
+            if len(found) >= count:
+                return found[count - 1]
+            time.sleep(0.2)
+        raise AssertionError(f"no {count} x {text!r} in\n{self.text()}")
+
+    def text(self) -> str:
+        return "".join(self.lines)

@@ -24,6 +24,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _wait_for_port(port: int, timeout: float = 30.0) -> None:
+    """Until something listens on 127.0.0.1:`port` (the server node has started)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.2)
+
+
 async def _handshake(port: int, token: str = TOKEN, headers: dict | None = None) -> int:
     """The HTTP status of a WebSocket handshake (101: accepted)."""
     async with aiohttp.ClientSession() as session:
@@ -73,13 +84,7 @@ def test_foxglove_server_serves_the_graph_to_its_owner_only(ros_domain):
     viz = start("visualizer", task="key")
     server = start("foxglove_server", port=port, token=TOKEN, discovery_period=0.2)
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                time.sleep(0.2)
+        _wait_for_port(port)
         assert asyncio.run(_handshake(port, token="wrong")) == 401
         assert asyncio.run(_handshake(port, headers={"Origin": "http://evil.example"})) == 403
         assert asyncio.run(_handshake(port, headers={"Host": "evil.example:80"})) == 403
@@ -158,13 +163,7 @@ def test_a_recorded_bag_is_watched_through_the_same_server(ros_domain, tmp_path)
                              f"token:={TOKEN}"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                time.sleep(0.2)
+        _wait_for_port(port)
         channel, payload = asyncio.run(_first_message(port, "/nmrm/viz/pose"))
         pose = deserialize_message(payload, PoseStamped)
         assert channel["schemaName"] == "geometry_msgs/msg/PoseStamped" and pose.header.frame_id == "map"

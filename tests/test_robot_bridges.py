@@ -388,9 +388,8 @@ def test_a_person_labels_the_robots_episodes(ros_domain, tmp_path):
     person's labels bag beside the oracle's; the page keeps the graph up until Ctrl-C."""
     import os
     import subprocess
-    import threading
 
-    from graph_helpers import executable
+    from graph_helpers import OutputLines, executable
     from nmrm_ros.bags import iter_decoded
     from nmrm_ros.labelling.client import PageClient
 
@@ -403,18 +402,8 @@ def test_a_person_labels_the_robots_episodes(ros_domain, tmp_path):
                              "subscribers:=6", "port:=0", "person:=dana",
                              "task:=nmrm_ros.robots.delivery:DeliveryEnv,max_steps=20,xy=0/1"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    lines: list = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
-    reader.start()
-
-    def wait_for(text: str, count: int = 1, timeout: float = 90.0) -> str:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            found = [line for line in list(lines) if text in line]
-            if len(found) >= count:
-                return found[count - 1]
-            time.sleep(0.2)
-        raise AssertionError(f"no {count} x {text!r} in\n{''.join(lines)}")
+    output = OutputLines(proc)
+    wait_for = output.wait_for
 
     try:
         url = wait_for("labelling page: ").split("labelling page: ")[1].split()[0]
@@ -427,8 +416,8 @@ def test_a_person_labels_the_robots_episodes(ros_domain, tmp_path):
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         code = proc.wait(60)
-        reader.join(10)
-    text = "".join(lines)
+        output.reader.join(10)
+    text = output.text()
     assert code == 130 and "interrupted by SIGINT" in text, text[-3000:]
     labels = [m for bag in out.parent.glob("robot_labels/person_*") for _, _, _, m in iter_decoded(bag)]
     assert [(m.episode, m.return_value, m.labeller) for m in labels] == [(1, 3.5, "person/dana")]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from graph_helpers import executable, finish
+from graph_helpers import OutputLines, executable, finish
 from nmrm_ros.bags import bag_summary, iter_decoded, load_bag_dataset
 
 REPO = Path(__file__).resolve().parents[1]
@@ -114,9 +114,6 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
     """label.launch.yaml under `ros2 launch`: four episodes wait on the page; two labels posted to
     its API make the trainer write key_v001, which the reward model and the page's queue load;
     the labels are in the labels bag; Ctrl-C ends all six nodes cleanly."""
-    import threading
-    import time
-
     from nmrm_ros.labelling.client import PageClient
     from nmrm_ros.mil import save_checkpoint
     from nmrm_ros.mil.ensemble import init_ensemble
@@ -128,19 +125,8 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
     out_dir = tmp_path / "session"
     proc = launcher("ros2", "label.launch.yaml", f"checkpoint:={start}", "episodes:=4", "port:=0",
                     "retrain_every:=2", "members:=2", "max_epochs:=3", f"out:={out_dir}", "person:=carol")
-    lines: list = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
-    reader.start()
-
-    def wait_for(text: str, timeout: float = 90.0, count: int = 1) -> str:
-        """The `count`-th line of the launch output containing `text`."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            found = [line for line in list(lines) if text in line]
-            if len(found) >= count:
-                return found[count - 1]
-            time.sleep(0.2)
-        raise AssertionError(f"no {count} x {text!r} in\n{''.join(lines)}")
+    output = OutputLines(proc)
+    wait_for = output.wait_for
 
     def api(path: str, body=None):
         client = PageClient(url)
@@ -164,8 +150,8 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             code = proc.wait()
-        reader.join(10)
-    out = "".join(lines)
+        output.reader.join(10)
+    out = output.text()
     assert code == 0, out
     assert "process has died" not in out and out.count("process has finished cleanly") == 6, out
     labels = [m for bag in (out_dir / "labels").glob("person_*") for _, _, _, m in iter_decoded(bag)]
