@@ -352,6 +352,7 @@ def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path, sig, in
     ("labeller_oracle", "label_noise:=flip", "unknown label_noise 'flip': use 'gaussian' or 'swap'"),
     ("recorder", "flush_period:=0.0", "parameter 'flush_period' must be at least 0.001, got 0.0"),
     ("env_sim", "wait_for_nodes:=3", "parameter 'wait_for_nodes' must be a string array, got an integer 3"),
+    ("foxglove_server", "port:=70000", "cannot serve on 127.0.0.1:70000: port 70000 is not one of 0-65535"),
 ])
 def test_wrong_parameters_get_one_line(ros_domain, node, param, message):
     from graph_helpers import executable

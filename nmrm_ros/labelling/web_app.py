@@ -38,6 +38,7 @@ and the page writes every value with textContent, never as HTML.
 from __future__ import annotations
 
 import asyncio
+import errno
 import hmac
 import json
 import threading
@@ -293,6 +294,10 @@ class WebServer:
         self.thread = threading.Thread(target=self.loop.run_forever, name="labeller-web", daemon=True)
 
     def start(self, timeout: float = 10.0) -> None:
+        """Bind and serve; OSError if it cannot (a port outside 0-65535 included: the socket
+        layer raises OverflowError for that, which the nodes' one-line errors would miss)."""
+        if not 0 <= int(self.port) <= 65535:
+            raise OSError(errno.EINVAL, f"port {self.port} is not one of 0-65535")
         self.thread.start()
         asyncio.run_coroutine_threadsafe(self._start(), self.loop).result(timeout)
 
