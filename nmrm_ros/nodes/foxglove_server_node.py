@@ -14,7 +14,6 @@ the diagnostics). The token is `token`, else one generated per start. Read-only.
 
 from __future__ import annotations
 
-import importlib
 import secrets
 import time
 from urllib.parse import quote
@@ -23,6 +22,7 @@ from rclpy.node import Node
 
 from ..ros.diagnostics import TOPIC as DIAGNOSTICS
 from ..ros.diagnostics import Diagnostics
+from ..ros.field_paths import message_class
 from ..ros.msg_schema import ros2msg_schema
 from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters, exit_with_upstream, run_node
 
@@ -41,11 +41,6 @@ PARAMETERS = {
     "topics": Param(DEFAULT_TOPICS, "topics to serve, subscribed once they appear in the graph"),
     "discovery_period": Param(1.0, "seconds between looks for new topics", 0.05),
 }
-
-
-def message_class(type_name: str):
-    pkg, _, name = type_name.partition("/msg/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
 def matching_qos(publishers: list):
@@ -89,7 +84,6 @@ class FoxgloveServerNode(Node):
             names = LOOPBACK if host in LOOPBACK else (host,)
             allowed_hosts.update((f"[{n}]" if ":" in n else n).lower() + f":{self.web.port}" for n in names)
         url = f"ws://{host}:{self.web.port}/?token={self.server.token}"
-        self.url = url
         self.get_logger().info(f"Foxglove: {url}  (open in the web app: https://app.foxglove.dev/?ds=foxglove-websocket"
                                f"&ds.url={quote(url, safe='')}; layout config/foxglove/nmrm_layout.json)")
         self.create_timer(float(p["discovery_period"]), self.discover)
@@ -103,6 +97,8 @@ class FoxgloveServerNode(Node):
 
     def discover(self) -> None:
         """Serve each wanted topic that has appeared in the graph since the last look."""
+        from rclpy.qos import DurabilityPolicy
+
         types = dict(self.get_topic_names_and_types())
         for topic in self.wanted:
             if topic in self.served or topic in self.skipped or topic not in types:
@@ -113,13 +109,11 @@ class FoxgloveServerNode(Node):
                 continue
             try:
                 cls, schema = message_class(type_name), ros2msg_schema(type_name)
-            except (ImportError, AttributeError, ValueError) as exc:
+            except ValueError as exc:  # not installed here
                 self.skipped.add(topic)
                 self.get_logger().warning(f"not serving {topic}: {exc}")
                 continue
             qos = matching_qos(publishers)
-            from rclpy.qos import DurabilityPolicy
-
             cid = self.server.add_channel(topic, type_name, schema,
                                           latched=qos.durability == DurabilityPolicy.TRANSIENT_LOCAL)
             upstream = topic != DIAGNOSTICS  # /diagnostics is published by this node too

@@ -11,7 +11,6 @@ rest of a launch failed at start) is removed at close, so it leaves no empty bag
 
 from __future__ import annotations
 
-import importlib
 import time
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from rclpy.node import Node
 from ..bags.schemas import TOPIC_TYPES, split_topic
 from ..bags.writer import BagWriter
 from ..ros.diagnostics import Diagnostics
+from ..ros.field_paths import message_class
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
                              exit_with_upstream, run_node)
 from ..ros.topics import STEP_QOS
@@ -35,11 +35,6 @@ PARAMETERS = {
                                    "its publishers are known here (so the first steps are not lost; 0: at once)", 0.0),
     "chunk_size": Param(262144, "MCAP chunk size in bytes (smaller: less lost on a hard kill)", 1024),
 }
-
-
-def message_class(type_name: str):
-    pkg, _, name = type_name.partition("/msg/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
 class RecorderNode(Node):

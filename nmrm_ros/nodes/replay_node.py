@@ -17,9 +17,9 @@ from rclpy.node import Node
 
 from ..bags.reader import BagError, bag_summary, iter_raw
 from ..ros.diagnostics import Diagnostics
+from ..ros.field_paths import message_class
 from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subscribed_nodes
 from ..ros.topics import STEP_QOS
-from .recorder_node import message_class
 
 RETRY_TIMEOUT_S = 60.0  # a full writer history: how long to wait for subscribers to take messages
 

@@ -25,16 +25,15 @@ class Diagnostics:
     values: () -> {key: value} of the node's counters and state (values shown with str()).
     rate_of: a key of `values` that counts up; its rate (per s) is added as `<key>_per_second`.
     warn: () -> a message while something is wrong (level WARN), else None.
-    summary: () -> the status message (default: the rate, or "running").
+    The status message is the rate (or "running"), then the warning.
     """
 
     def __init__(self, node, values: Callable[[], dict], rate_of: str | None = None,
-                 warn: Callable[[], str | None] | None = None, summary: Callable[[], str] | None = None,
-                 hardware_id: str = "", period: float = PERIOD_S) -> None:
+                 warn: Callable[[], str | None] | None = None, hardware_id: str = "", period: float = PERIOD_S) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
 
         self.node, self.values, self.rate_of = node, values, rate_of
-        self.warn, self.summary, self.hardware_id = warn, summary, hardware_id
+        self.warn, self.hardware_id = warn, hardware_id
         self.name = f"nmrm: {node.get_fully_qualified_name()}"
         self.window: tuple | None = None  # (monotonic time, count) at the last publication
         self.pub = node.create_publisher(DiagnosticArray, TOPIC, 10)
@@ -53,8 +52,6 @@ class Diagnostics:
             self.window = (now, count)
             values[f"{self.rate_of}_per_second"] = f"{rate:.2f}"
             message = f"{rate:.1f} {self.rate_of.replace('_', ' ')}/s"
-        if self.summary is not None:
-            message = self.summary()
         problem = self.warn() if self.warn is not None else None
         return DiagnosticStatus(
             level=DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, name=self.name,

@@ -34,6 +34,11 @@ FOXGLOVE_APP = "https://app.foxglove.dev"
 _MESSAGE_DATA = 0x01
 
 
+def _data_frame(subscription_id: int, stamp_ns: int, payload: bytes) -> bytes:
+    """A Message Data frame: opcode 0x01, subscription id (u32), receive time (u64 ns), payload."""
+    return struct.pack("<BIQ", _MESSAGE_DATA, subscription_id, stamp_ns) + payload
+
+
 @dataclass
 class Channel:
     id: int
@@ -91,9 +96,6 @@ class FoxgloveServer:
         if channel is not None and channel.latched:
             channel.last = (stamp_ns, payload)
         self._soon(self._send_data(channel_id, stamp_ns, payload))
-
-    def subscribed(self, channel_id: int) -> bool:
-        return any(channel_id in c.subscriptions.values() for c in list(self.clients))
 
     def _soon(self, coro) -> None:
         if self.loop is None or self.loop.is_closed():
@@ -156,7 +158,7 @@ class FoxgloveServer:
                         client.subscriptions[sid] = cid
                         last = self.channels[cid].last
                         if last is not None:
-                            await client.ws.send_bytes(struct.pack("<BIQ", _MESSAGE_DATA, sid, last[0]) + last[1])
+                            await client.ws.send_bytes(_data_frame(sid, *last))
             elif op == "unsubscribe":
                 for sid in msg["subscriptionIds"]:
                     client.subscriptions.pop(int(sid), None)
@@ -179,4 +181,4 @@ class FoxgloveServer:
         for client in list(self.clients):
             for sid, cid in list(client.subscriptions.items()):
                 if cid == channel_id and not client.ws.closed:
-                    await client.ws.send_bytes(struct.pack("<BIQ", _MESSAGE_DATA, sid, stamp_ns) + payload)
+                    await client.ws.send_bytes(_data_frame(sid, stamp_ns, payload))
