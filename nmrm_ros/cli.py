@@ -754,6 +754,39 @@ def rl_train(
     typer.echo(f"wrote {out}/policy.zip, curve.csv, curve.png")
 
 
+@app.command("loop")
+def loop_command(
+    task: str = typer.Option(..., help=TASK_HELP),
+    rounds: int = typer.Option(4, min=1, help="rounds of labelling, model training and RL (1: the offline baseline)"),
+    labels_per_round: int = typer.Option(250, min=10, help="episodes labelled per round (round 0: screened "
+                                                            "random episodes; then the agent's)"),
+    episodes: int = typer.Option(None, min=1, help="the agent's training episodes over all rounds "
+                                                  "(default: config/rl.yaml, 400 DQN / 800 SAC)"),
+    seed: int = typer.Option(0, min=0, help="seed of the agent, its episodes, round 0's data and the models"),
+    oracle: str = typer.Option("", help=ORACLE_HELP + "; it labels and judges every episode"),
+    members: int = typer.Option(None, min=1, help="models per reward model (default: the task's training config)"),
+    max_epochs: int = typer.Option(None, min=1, help="epoch limit of each training (default: the task's config)"),
+    out: Path = typer.Option(Path("runs/loop"), help="output directory: labels.npz, model_<round>, agent/, loop.json",
+                             callback=_output_dir),
+) -> None:
+    """The reward-model <-> agent loop: each round labels episodes (the oracle), retrains the MIL
+    model on all labels so far (warm start) and lets the agent learn on it; the agent's replay
+    buffer is relabelled with each new model."""
+    from .mil import CheckpointError
+    from .rl.reward_model_loop import check_loop_arguments, run_loop
+    from .tasks import check_task
+
+    _bad_input(check_task, task)
+    _bad_input(check_loop_arguments, rounds, labels_per_round, episodes)
+    try:
+        result = run_loop(task, rounds, labels_per_round, episodes=episodes, seed=seed, out=out, oracle=oracle,
+                          members=members, max_epochs=max_epochs, log=typer.echo)
+    except (CheckpointError, ValueError) as exc:
+        raise typer.BadParameter(str(exc)) from None
+    typer.echo(result.summary())
+    typer.echo(f"wrote {out}/loop.json, labels.npz, model_*.pt, agent/")
+
+
 @rl_app.command("evaluate")
 def rl_evaluate(
     policy: Path = typer.Option(..., help="policy.zip from `nmrm rl train` or the agent node"),

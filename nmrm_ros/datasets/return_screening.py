@@ -20,6 +20,7 @@ episodes is refused.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -128,24 +129,33 @@ def screen_by_return(task: str, oracle: Oracle, n: int, pool_size: int | None = 
     if bins < 1:
         raise ValueError(f"bins must be at least 1, got {bins}")
     start = time.perf_counter()
-    pool = rollout_episodes(task, pool_size, seed, policy, progress)
+    everything = label_rollouts(task, oracle, rollout_episodes(task, pool_size, seed, policy, progress))
+    classes = return_bins(everything.returns, bins)
+    keep, cap = balanced_keep(classes, n)
+    ds = everything.subset(keep)
+    horizon = int(ds.lengths.max())
+    meta = {"seed": seed, "generator": "return_screening", "policy": policy_name, "pool": pool_size,
+            "bins": bins, "cap_per_bin": cap, "oracle": getattr(oracle, "spec", task),
+            "seconds": time.perf_counter() - start}
+    return replace(ds, states=ds.states[:, :horizon], rewards=ds.rewards[:, :horizon],
+                   hidden=ds.hidden[:, :horizon], actions=ds.actions[:, :horizon], classes=classes[keep],
+                   meta=meta)
+
+
+def label_rollouts(task: str, oracle: Oracle, pool: list, meta: dict | None = None) -> TrajectoryDataset:
+    """Every episode of `pool` (a list of (states (L + 1, d), actions (L, A)), as `rollout_episodes`
+    gives) labelled by `oracle`, in order: states zero-padded to the longest episode, the last
+    observation of each in `final_states`."""
     info = task_info(task)
     horizon = max(len(a) for _, a in pool)
     width = pool[0][1].shape[1]
-    states = np.zeros((pool_size, horizon, info.state_size), np.float32)
-    actions = np.zeros((pool_size, horizon, width), np.float32)
-    final = np.zeros((pool_size, info.state_size), np.float32)
-    lengths = np.zeros(pool_size, np.int64)
+    states = np.zeros((len(pool), horizon, info.state_size), np.float32)
+    actions = np.zeros((len(pool), horizon, width), np.float32)
+    final = np.zeros((len(pool), info.state_size), np.float32)
+    lengths = np.zeros(len(pool), np.int64)
     for i, (s, a) in enumerate(pool):
         lengths[i] = len(a)
         states[i, : len(a)], actions[i, : len(a)], final[i] = s[:-1], a, s[-1]
     labels = oracle.label(states, actions, lengths)
-    classes = return_bins(labels.returns, bins)
-    keep, cap = balanced_keep(classes, n)
-    horizon = int(lengths[keep].max())
-    meta = {"seed": seed, "generator": "return_screening", "policy": policy_name, "pool": pool_size,
-            "bins": bins, "cap_per_bin": cap, "oracle": getattr(oracle, "spec", task),
-            "seconds": time.perf_counter() - start}
-    return TrajectoryDataset(task, states[keep, :horizon], lengths[keep], labels.returns[keep],
-                             labels.rewards[keep, :horizon], labels.hidden[keep, :horizon],
-                             actions[keep, :horizon], final[keep], classes[keep], meta)
+    return TrajectoryDataset(task, states, lengths, labels.returns, labels.rewards, labels.hidden,
+                             actions, final, None, dict(meta or {}))

@@ -63,10 +63,12 @@ def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILE
 
 
 def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lstm", members: int = 5,
-            max_epochs: int = 40, seed: int = 0, init: str | None = None, threads: int = 1,
-            feedback: str = "returns") -> dict:
+            max_epochs: int | None = 40, seed: int = 0, init: str | None = None, threads: int = 1,
+            feedback: str = "returns", bootstrap: bool | None = None) -> dict:
     """Train a `members`-member ensemble on `ds` from `feedback` (returns | preferences | both;
     warm-started from `init` where it fits), save it to `out` (.pt + .json) and return a summary:
+    max_epochs None: the task's training config's; bootstrap: each member trains on its own
+    resample of the training bags (default: with returns only; False: all members on all of them).
     labels, comparisons, the validation loss (members' mean) and the ensemble mean's validation
     return MSE (NaN without return labels) and preference accuracy, best epochs, seconds, how it
     started."""
@@ -76,7 +78,9 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
                           hidden_size=cfg.hidden_size)
     # comparisons: no bootstrap of the episodes (a comparison needs both of its episodes, so a
     # resample would drop about 60% of them); the members differ by their seeds
-    splits = retrain_splits(len(ds), members, seed, bootstrap=feedback == "returns")
+    if bootstrap is None:
+        bootstrap = feedback == "returns"
+    splits = retrain_splits(len(ds), members, seed, bootstrap=bootstrap)
     ens, start = _warm_start(init, ds.task, config, members)
     seeds = [seed + m for m in range(members)]
     fresh = ens is None

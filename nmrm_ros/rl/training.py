@@ -128,7 +128,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
                 episodes: int | None = None, seed: int = 0, out: str | Path | None = None,
                 env_seed: int | None = None, n_envs: int = 1, progress: bool = True,
                 config: str | Path | None = None, on_episode=None, served: str | None = None,
-                oracle: str = "", **overrides) -> AgentRun:
+                oracle: str = "", callback: EpisodeCurveCallback | None = None, **overrides) -> AgentRun:
     """Train the paper's agent for `task` on reward `reward` ("model" with `checkpoint`, "oracle",
     "oracle-no-hidden") for `episodes` episodes (default: the config's).
 
@@ -138,7 +138,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     (reward "model": "h_tanh_c" = [h', tanh c'], "h_c" = [h', c'], "h" = h' only; None = the
     checkpoint's own; `nmrm_ros.mil.served_state`). oracle: a user's oracle function ("<module>:<function>") that
     judges every episode (and is the reward of "oracle" / "oracle-no-hidden"); default the task's.
-    overrides:
+    callback: an `EpisodeCurveCallback` (or a subclass, e.g. the reward-model loop's rounds) used
+    in place of a plain one; its `max_episodes` is set to `episodes`. overrides:
     settings of config/rl.yaml (e.g. learning_starts).
     """
     import torch
@@ -164,7 +165,9 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
     # as its base, so give each env its own base (VecEnv.seed can only add the env index).
     vec._seeds = seeds  # noqa: SLF001 - no public setter
-    callback = EpisodeCurveCallback(max_episodes=episodes, on_episode=on_episode)
+    if callback is None:
+        callback = EpisodeCurveCallback(on_episode=on_episode)
+    callback.max_episodes = episodes
     t0 = time.perf_counter()
     model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
     seconds = time.perf_counter() - t0

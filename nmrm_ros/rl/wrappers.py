@@ -79,21 +79,41 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
             self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         self._pending = (0.0, 0.0)  # (reward, oracle reward) of the current state s_t
         self._returns = [0.0, 0.0]
+        self._states: list = []  # s_0..s_t of the episode in progress (for swap_stepper)
 
     def _consume(self, state: np.ndarray) -> np.ndarray:
         """Step both trackers with s_t; remember r_t; return the observation."""
         reward, hidden = self.stepper.step(state)
         oracle_reward, _ = self.oracle.step(state)
         self._pending = (float(reward), float(oracle_reward))
+        self._states.append(np.array(state))  # a copy: an env may reuse its buffer
+        return self._observation(state, hidden)
+
+    def _observation(self, state: np.ndarray, hidden: np.ndarray) -> np.ndarray:
         if not self.augment:
             return np.asarray(state, dtype=np.float32)
         return np.concatenate([np.asarray(state, np.float64), np.asarray(hidden, np.float64)]).astype(np.float32)
+
+    def swap_stepper(self, stepper: HiddenStateStepper) -> np.ndarray:
+        """Serve `stepper` from now on: it is reset and stepped over the episode in progress
+        (s_0..s_t), so the reward of the next transition and the observation are its own; the
+        learnt return so far is recomputed with it. Returns the observation [s_t, h_{t+1}] of
+        the current state under the new stepper (the agent must act on it, not on the old one)."""
+        if not self._states:
+            raise RuntimeError("swap_stepper needs an episode in progress (call reset first)")
+        stepper.reset()
+        rewards = [stepper.step(s) for s in self._states]
+        self.stepper = stepper
+        self._returns[0] = float(sum(r for r, _ in rewards[:-1]))
+        self._pending = (float(rewards[-1][0]), self._pending[1])
+        return self._observation(self._states[-1], rewards[-1][1])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         state, info = self.env.reset(seed=seed, options=options)
         self.stepper.reset()
         self.oracle.reset()
         self._returns = [0.0, 0.0]
+        self._states = []
         return self._consume(state), info
 
     def step(self, action):
@@ -136,6 +156,23 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
         judge = make_oracle(task, oracle) if oracle else task
         super().__init__(env, online, judge, augment=True, hidden_size=online.served_size)
         self.served = served
+        self.task = task
+
+    def swap_model(self, model) -> np.ndarray:
+        """Serve `model` (a `MILRewardModel`, `MILEnsemble` or checkpoint path of the same task)
+        from now on, with the same served state, which must have the same size (the observation
+        space does not change); the episode in progress is re-stepped (`swap_stepper`).
+        Returns the current observation under the new model."""
+        from ..mil import OnlineRewardModel, load_checkpoint
+
+        if isinstance(model, (str, Path)):
+            model, _ = load_checkpoint(model, task=self.task)
+        online = OnlineRewardModel(model, served=self.served)
+        if online.served_size != self.stepper.served_size or online.input_size != self.stepper.input_size:
+            raise ValueError(f"the new model serves {online.served_size} values for states of size "
+                             f"{online.input_size}; the agent observes {self.stepper.served_size} for "
+                             f"{self.stepper.input_size}")
+        return self.swap_stepper(online)
 
 
 class OracleRewardWrapper(NonMarkovianRewardWrapper):

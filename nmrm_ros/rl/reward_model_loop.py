@@ -1,0 +1,239 @@
+"""The reward-model ⇄ agent loop (the paper's Sec. 6 future work: "an iterative bootstrapping
+approach with multiple RL + RM training iterations").
+
+`run_loop(task, rounds, labels_per_round)` alternates labelling, MIL training and RL:
+
+- round 0: `labels_per_round` screened random episodes (data seed `seed`, as `nmrm dataset
+  screen`) are labelled by the oracle and model 0 is trained on them;
+- round k >= 1: the agent (as it is after k/R of its episodes) acts for `labels_per_round` new
+  episodes with its exploration policy (DQN: epsilon-greedy at its current epsilon; SAC: its
+  stochastic policy), served by model k - 1; the oracle labels them, and model k is trained on
+  all the labels so far, warm-started from model k - 1 (`nmrm_ros.mil.retrain`, no bootstrap);
+- the agent learns for `episodes` episodes in one SB3 `learn()` call (its exploration schedule
+  is that of one run), on model k during episodes [k E / R, (k + 1) E / R).
+
+When the model changes, the agent's augmented state [s_t, h'_{t+1}] and its rewards change meaning.
+The loop keeps the agent's networks (a warm start) and relabels its whole replay buffer with the
+new model (`replay_relabel`): every stored episode is stepped through the new model from its first
+state, so the agent learns only from the new model's rewards and hidden states; the episode that
+has just started is re-stepped too (`RewardModelWrapper.swap_model`). A model's served state must
+keep its size across rounds (the same architecture and hidden size: the task's config).
+
+With `rounds=1` it is the offline baseline: one screened random dataset of `labels_per_round`
+labels, one model, one agent.
+
+Output in `out/`: labels.npz (every label, in order; round r's are rows [r N, (r + 1) N)),
+model_r.{pt,json} per round, agent/ (policy.zip, curve.csv, agent.json as `nmrm rl train`'s) and
+loop.json (per round: labels, training summary, the agent's episodes and their mean oracle return;
+the final oracle return and a greedy evaluation).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .training import EpisodeCurveCallback
+
+#: episode seeds of the agent's labelled episodes: well away from its training episodes' (seed + e)
+LABEL_SEED_OFFSET = 10**7
+
+
+@dataclass
+class Round:
+    """One round: its labels, its model, the agent episodes it served."""
+
+    index: int
+    labels: int            # labels collected this round
+    total_labels: int      # labels the model was trained on
+    source: str            # "screened random episodes" or "agent episodes"
+    checkpoint: str
+    training: dict         # nmrm_ros.mil.retrain summary
+    first_episode: int = 0  # the agent's episodes served by this round's model: [first, last)
+    last_episode: int = 0
+    mean_oracle_return: float = float("nan")  # of those episodes
+    label_mean_return: float = float("nan")   # of the episodes labelled this round
+    seconds: float = 0.0
+
+
+@dataclass
+class LoopResult:
+    task: str
+    rounds: list = field(default_factory=list)
+    final_oracle_return: float = float("nan")  # mean of the agent's last 50 training episodes
+    greedy_oracle_return: float = float("nan")  # greedy policy on 50 new episodes
+    seconds: float = 0.0
+    out: str = ""
+
+    def summary(self) -> str:
+        lines = [f"{'round':>5s} {'labels':>7s} {'from':>26s} {'val return MSE':>15s} "
+                 f"{'agent episodes':>15s} {'oracle return':>14s}"]
+        for r in self.rounds:
+            lines.append(f"{r.index:5d} {r.total_labels:7d} {r.source:>26s} "
+                         f"{r.training.get('val_return_mse', float('nan')):15.4f} "
+                         f"{f'{r.first_episode}-{r.last_episode - 1}':>15s} {r.mean_oracle_return:14.3f}")
+        lines.append(f"final oracle return (last 50 episodes) {self.final_oracle_return:.3f}; greedy policy "
+                     f"on 50 new episodes {self.greedy_oracle_return:.3f}; {self.seconds:.0f} s")
+        return "\n".join(lines)
+
+
+def agent_episodes(agent, wrapper_env, episodes: int, seed: int) -> list:
+    """`episodes` episodes of `agent` acting as it explores (SB3 predict(deterministic=False)) in
+    `wrapper_env` (a reward wrapper of the model it learns from), episode e reset with seed
+    seed + e: a list of (states (L + 1, d), actions (L, A)) of the raw states."""
+    d = wrapper_env.unwrapped.observation_space.shape[0]
+    out = []
+    for e in range(episodes):
+        obs, _ = wrapper_env.reset(seed=seed + e)
+        states, actions, done = [obs[:d].copy()], [], False
+        while not done:
+            action = agent.predict(obs, deterministic=False)[0]
+            obs, _, terminated, truncated, _ = wrapper_env.step(action)
+            states.append(obs[:d].copy())
+            actions.append(np.asarray(action, np.float32).reshape(-1))
+            done = terminated or truncated
+        out.append((np.stack(states), np.stack(actions)))
+    return out
+
+
+class LoopRounds(EpisodeCurveCallback):
+    """An `EpisodeCurveCallback` that runs `next_round(k)` after the agent's episode
+    `boundaries[k - 1]` and swaps the model it returns in (at the start of the next episode, before
+    the agent acts on it)."""
+
+    def __init__(self, boundaries: list, next_round) -> None:
+        super().__init__()
+        self.boundaries = list(boundaries)
+        self.next_round = next_round
+        self.round = 0
+        self._pending = False
+
+    def _on_step(self) -> bool:
+        go_on = super()._on_step()
+        if self.round < len(self.boundaries) and len(self.curve.records) >= self.boundaries[self.round]:
+            self._pending = True  # swap at the next rollout start: the final transition is stored then
+        return go_on
+
+    def _on_rollout_start(self) -> None:
+        if not self._pending or self._stop_next:
+            return
+        self._pending = False
+        self.round += 1
+        from .replay_relabel import relabel_replay_buffer
+
+        model = self.next_round(self.round, self.model)
+        wrapper = find_reward_wrapper(self.training_env.envs[0])
+        obs = wrapper.swap_model(model)
+        self.model._last_obs = obs[None].copy()  # noqa: SLF001 - the observation the agent acts on next
+        relabel_replay_buffer(self.model.replay_buffer, wrapper.stepper, wrapper.unwrapped.observation_space.shape[0])
+
+
+def find_reward_wrapper(env):
+    """The `RewardModelWrapper` inside `env` (e.g. under SB3's Monitor)."""
+    from .wrappers import RewardModelWrapper
+
+    while not isinstance(env, RewardModelWrapper):
+        if not hasattr(env, "env"):
+            raise ValueError("the agent's env has no RewardModelWrapper")
+        env = env.env
+    return env
+
+
+def check_loop_arguments(rounds: int, labels_per_round: int, episodes: int | None) -> None:
+    """ValueError (one line) for a loop that cannot run."""
+    if rounds < 1:
+        raise ValueError(f"rounds must be at least 1, got {rounds}")
+    if labels_per_round < 10:
+        raise ValueError(f"labels per round must be at least 10 (a fifth validates the model), got {labels_per_round}")
+    if episodes is not None and episodes < rounds:
+        raise ValueError(f"{episodes} agent episodes cannot be split over {rounds} rounds")
+
+
+def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None = None, seed: int = 0,
+             out: str | Path = "runs/loop", oracle: str = "", architecture: str = "csc_lstm",
+             members: int | None = None, max_epochs: int | None = None, progress: bool = False,
+             log=print) -> LoopResult:
+    """Run the loop (module docstring) and write its files to `out`.
+
+    episodes: the agent's training episodes (default config/rl.yaml's); seed: the agent's and
+    the episodes' seed, the data seed of round 0 and the models' weight seed; oracle: a user's
+    oracle function that labels and judges (default the task's); members, max_epochs: of each
+    model (default the task's training config, config/mil_training.yaml).
+    """
+    from ..datasets import generate_screened
+    from ..datasets.return_screening import label_rollouts
+    from ..datasets.trajectories import concatenate
+    from ..mil.retrain import retrain
+    from ..mil.training import load_train_config
+    from ..oracles import make_oracle
+    from .config import algorithm_name, load_rl_config
+    from .evaluation import evaluate_agent
+    from .training import train_agent
+    from .wrappers import make_reward_env
+
+    check_loop_arguments(rounds, labels_per_round, episodes)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    cfg = load_train_config(task)
+    members = members or cfg.members
+    episodes = int(load_rl_config(algorithm_name(task), episodes=episodes)["episodes"])
+    check_loop_arguments(rounds, labels_per_round, episodes)
+    judge = make_oracle(task, oracle)
+    result = LoopResult(task, out=str(out))
+    labels = []
+
+    def train_model(k: int, part, source: str) -> str:
+        start = time.perf_counter()
+        labels.append(part)
+        ds = concatenate(labels)
+        ds.save(out / "labels.npz")
+        init = str(out / f"model_{k - 1}") if k else None
+        summary = retrain(ds, out / f"model_{k}", architecture, members, max_epochs, seed=seed, init=init,
+                          bootstrap=False)
+        rnd = Round(k, len(part), len(ds), source, summary["checkpoint"], summary,
+                    label_mean_return=float(np.mean(part.returns)), seconds=time.perf_counter() - start)
+        result.rounds.append(rnd)
+        log(f"round {k}: {len(part)} labels from {source} (mean return {rnd.label_mean_return:.3f}), "
+            f"model {k} on {len(ds)}: validation return MSE {summary['val_return_mse']:.4f} "
+            f"({summary['epochs_run']} epochs, {summary['start'].split(':')[0]}, {summary['seconds']:.0f} s)")
+        write()
+        return summary["checkpoint"]
+
+    def next_round(k: int, agent):
+        env = make_reward_env(task, "model", result.rounds[-1].checkpoint, seed=seed, oracle=oracle)
+        pool = agent_episodes(agent, env, labels_per_round, seed + LABEL_SEED_OFFSET + k * labels_per_round)
+        part = label_rollouts(task, judge, pool, {"source": f"agent episodes, round {k}"})
+        like = labels[0].actions
+        if like is not None and like.ndim == 2:  # discrete actions stored as (n, L) ids, as round 0's
+            part.actions = part.actions[..., 0].astype(like.dtype)
+        return train_model(k, part, "agent episodes")
+
+    def write() -> None:
+        (out / "loop.json").write_text(json.dumps({**asdict(result), "labels_per_round": labels_per_round,
+                                                   "rounds_planned": rounds, "episodes": episodes,
+                                                   "seed": seed, "oracle": oracle,
+                                                   "architecture": architecture, "members": members},
+                                                  indent=1, default=str))
+
+    first = generate_screened(task, labels_per_round, seed=seed, oracle=oracle)
+    checkpoint = train_model(0, first, "screened random episodes")
+    boundaries = [round(episodes * k / rounds) for k in range(1, rounds)]
+    callback = LoopRounds(boundaries, next_round)
+    run = train_agent(task, "model", checkpoint=checkpoint, episodes=episodes, seed=seed, out=out / "agent",
+                      progress=progress, oracle=oracle, callback=callback)
+    edges = [0] + boundaries + [episodes]
+    returns = np.array([r.oracle_return for r in run.curve.records])
+    for k, rnd in enumerate(result.rounds):
+        rnd.first_episode, rnd.last_episode = edges[k], edges[k + 1]
+        rnd.mean_oracle_return = float(returns[edges[k]:edges[k + 1]].mean()) if edges[k + 1] > edges[k] else float("nan")
+    result.final_oracle_return = run.curve.final_oracle_return()
+    ev = evaluate_agent(run.model, task, result.rounds[-1].checkpoint, reward="model", oracle=oracle)
+    result.greedy_oracle_return = float(np.mean(ev.returns))
+    result.seconds = time.perf_counter() - t0
+    write()
+    return result

@@ -1,0 +1,113 @@
+"""The reward-model <-> agent loop: a model swapped under a running agent, its replay buffer
+relabelled with the new model, and `nmrm loop` end to end (tiny budgets: only the wiring matters)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from graph_helpers import executable
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.mil import OnlineRewardModel, load_checkpoint, load_train_config
+from nmrm_ros.mil.online import batched_reference
+from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper, load_rl_config, make_algorithm, make_reward_env
+from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
+from nmrm_ros.tasks import make_env, task_info
+
+D = task_info("key").state_size  # the raw state's part of an observation
+
+
+@pytest.fixture(scope="module")
+def two_models(tmp_path_factory):
+    """Two different Key CSC models (weight seeds 0 and 1, 2 epochs): the old one and the new one."""
+    ds = generate_screened("key", 200, seed=0)
+    out = tmp_path_factory.mktemp("models")
+    return [train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=2, seed=s),
+                               out=out / f"key_{s}", progress=False).checkpoint for s in (0, 1)]
+
+
+def test_a_swapped_model_serves_the_episode_in_progress_as_if_it_had_served_it_from_the_start(two_models):
+    old, new = two_models
+    actions = np.random.default_rng(3).integers(0, 5, 30)
+    swapped = RewardModelWrapper(EpisodeSeeds(make_env("key"), 5), old, task="key")
+    fresh = RewardModelWrapper(EpisodeSeeds(make_env("key"), 5), new, task="key")
+    swapped.reset(seed=5)
+    fresh.reset(seed=5)
+    for a in actions[:20]:
+        swapped.step(a)
+        obs_fresh = fresh.step(a)[0]
+    obs = swapped.swap_model(new)
+    np.testing.assert_allclose(obs, obs_fresh, rtol=1e-6, atol=1e-6)
+    for a in actions[20:]:
+        o1, r1, *_ = swapped.step(a)
+        o2, r2, *_ = fresh.step(a)
+        np.testing.assert_allclose(o1, o2, rtol=1e-6, atol=1e-6)
+        assert r1 == pytest.approx(r2)
+    assert swapped._returns[0] == pytest.approx(fresh._returns[0])  # noqa: SLF001
+
+
+def test_a_swap_refuses_a_model_of_another_served_size(two_models, tmp_path):
+    ds = generate_screened("key", 50, seed=0)
+    bigger = train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=1, hidden_size=4),
+                                out=tmp_path / "h4", progress=False).checkpoint
+    env = RewardModelWrapper(EpisodeSeeds(make_env("key"), 5), two_models[0], task="key")
+    env.reset(seed=5)
+    with pytest.raises(ValueError, match="serves 8 values for states of size 2; the agent observes 4 for 2"):
+        env.swap_model(bigger)
+
+
+@pytest.mark.parametrize("buffer_size", [10_000, 250])  # 250: the buffer wraps round mid-episode
+def test_the_replay_buffer_is_relabelled_with_the_new_model(two_models, buffer_size):
+    old, new = two_models
+    env = make_reward_env("key", "model", old, seed=0)
+    cfg = load_rl_config("dqn", learning_starts=10_000, buffer_size=buffer_size)
+    agent = make_algorithm(env, "dqn", cfg, 100, seed=0)
+    agent.learn(total_timesteps=350)  # three and a half episodes, no gradient step
+    buf = agent.replay_buffer
+    model, _ = load_checkpoint(new)
+    n = relabel_replay_buffer(buf, OnlineRewardModel(model, served="h_tanh_c"), D)
+    assert n == min(350, buffer_size)
+    size = buf.buffer_size if buf.full else buf.pos
+    order = (np.arange(size) + buf.pos) % size if buf.full else np.arange(size)
+    ends = [i for i, idx in enumerate(order) if buf.dones[idx, 0]]
+    starts = [0] + [e + 1 for e in ends]
+    for start, end in zip(starts, ends + [len(order) - 1]):
+        idx = order[start:end + 1]
+        states = np.concatenate([buf.observations[idx, 0, :D], buf.next_observations[idx[-1:], 0, :D]])
+        rewards, served = batched_reference(model, states, "h_tanh_c")
+        np.testing.assert_allclose(buf.rewards[idx, 0], rewards[:-1], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(buf.observations[idx, 0, D:], served[:-1], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(buf.next_observations[idx, 0, D:], served[1:], rtol=1e-5, atol=1e-6)
+
+
+def test_nmrm_loop_runs_rounds_and_writes_what_it_says(tmp_path):
+    out = tmp_path / "loop"
+    res = subprocess.run([executable("nmrm"), "loop", "--task", "key", "--rounds", "3", "--labels-per-round", "20",
+                          "--episodes", "6", "--members", "2", "--max-epochs", "2", "--out", str(out)],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "round 2: 20 labels from agent episodes" in res.stdout
+    summary = json.loads((out / "loop.json").read_text())
+    assert [r["total_labels"] for r in summary["rounds"]] == [20, 40, 60]
+    assert [(r["first_episode"], r["last_episode"]) for r in summary["rounds"]] == [(0, 2), (2, 4), (4, 6)]
+    assert summary["rounds"][1]["training"]["start"].startswith("warm-started from")
+    for name in ("labels.npz", "model_0.pt", "model_2.pt", "agent/policy.zip", "agent/curve.csv"):
+        assert (out / name).stat().st_size > 0
+    assert len((out / "agent/curve.csv").read_text().splitlines()) == 7
+
+
+@pytest.mark.parametrize("args,message", [
+    ("--rounds 0", "--rounds"),
+    ("--labels-per-round 5", "--labels-per-round"),
+    ("--rounds 5 --episodes 3", "3 agent episodes cannot be split over 5 rounds"),
+    ("--task nowhere", "unknown task 'nowhere'"),
+])
+def test_nmrm_loop_refuses_nonsense_in_one_line(tmp_path, args, message):
+    argv = ["loop", "--task", "key", "--out", str(tmp_path / "x")] + args.split()
+    res = subprocess.run([executable("nmrm"), *argv], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and message in res.stderr and "Traceback" not in res.stderr, res.stderr
+    assert not (tmp_path / "x").exists()
