@@ -99,3 +99,44 @@ def test_sigint_saves_the_policy(ros_domain, tmp_path):
     meta = json.loads((policy / "agent.json").read_text())
     assert meta["outcome"] == "stopped by shutdown", out
     assert "learner stopped by shutdown" in out
+
+
+def test_loop_launch_file_retrains_swaps_and_relabels_the_agents_replay_buffer(ros_domain, tmp_path, key_checkpoint):
+    """loop.launch.yaml: the oracle labels the learning agent's episodes, the trainer retrains every
+    10 labels and swaps each version in; the agent relabels its replay buffer with each version once
+    it is served. At exit every stored transition of an episode served by the last version the
+    agent relabelled with, or by an earlier one, is exactly what that last version gives."""
+    import copy
+
+    from nmrm_ros.bags.reader import iter_decoded
+    from nmrm_ros.mil import OnlineRewardModel, load_checkpoint
+    from nmrm_ros.mil.served_state import checkpoint_served_state
+    from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    out = tmp_path / "loop"
+    code, text = finish(subprocess.Popen(
+        [executable("nmrm"), "launch", str(REPO / "launch_scripts" / "loop.launch.yaml"), "task:=key",
+         f"checkpoint:={key_checkpoint}", "episodes:=60", "labels_per_round:=10", "members:=1", "max_epochs:=2",
+         "save_replay_buffer:=true", f"out:={out}"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
+        timeout=300)
+    assert code == 0, text
+    relabelled = [line.split("relabelled with ")[1].split(":")[0] for line in text.splitlines()
+                  if "replay buffer relabelled with" in line]
+    assert relabelled, text
+    assert len((out / "agent" / "curve.csv").read_text().splitlines()) == 61
+    served = {}  # episode id -> the model that served it
+    for _, _, _, msg in iter_decoded(out / "bag", ["/nmrm/reward_step"]):
+        served.setdefault(msg.episode, msg.source)
+    assert len(served) == 60 and relabelled[-1] in served.values(), served
+    first_after = min([e for e, name in served.items() if name > relabelled[-1]], default=60)
+
+    saved = load_from_pkl(out / "agent" / "replay_buffer.pkl")
+    assert saved.pos == 6000
+    model, meta = load_checkpoint(out / "checkpoints" / relabelled[-1])
+    redone = copy.deepcopy(saved)
+    relabel_replay_buffer(redone, OnlineRewardModel(model, served=checkpoint_served_state(meta)), 2)
+    upto = first_after * 100  # episodes are 100 steps: transitions of episodes served up to the last relabel
+    np.testing.assert_allclose(saved.rewards[:upto], redone.rewards[:upto], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(saved.observations[:upto], redone.observations[:upto], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(saved.next_observations[:upto], redone.next_observations[:upto], rtol=1e-5, atol=1e-6)

@@ -16,6 +16,14 @@ policy.zip, curve.csv (learnt return per episode, and the oracle return when a l
 TrajectoryReturn) and agent.json every `save_every` episodes and at exit (Ctrl-C/SIGTERM too);
 `save_replay_buffer` adds replay_buffer.pkl. Progress is logged every `log_every` episodes.
 
+A reward model retrained while the agent learns (the trainer node; the reward-model <-> agent
+loop, launch_scripts/loop.launch.yaml) changes what the agent's rewards and hidden states mean.
+`checkpoint` (settable while running; the trainer sets it with the reward model's) names the
+model being served: once RewardStep.source names it (the reward model has swapped it in, at an
+episode start), the agent relabels its whole replay buffer with it (rewards r'_t and served
+states h'_{t+1} recomputed from the stored states, `nmrm_ros.rl.replay_relabel`) before it acts
+again, and keeps its networks.
+
 No action is sent for a final (terminated/truncated) input. A repeated input (same episode and
 step, e.g. a re-published observation) gets the same action again.
 
@@ -43,7 +51,7 @@ from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep, TrajectoryRet
 from ..ros.diagnostics import Diagnostics
 from ..ros.messages import as_vector
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, require_task, run_node)
+                             exit_with_upstream, live_parameter, require_task, run_node)
 from ..ros.topics import ACTION, OBSERVATION, REWARD_STEP, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -65,6 +73,9 @@ PARAMETERS = {
     "rl_config": Param("", "policy learn: RL config YAML (default config/rl.yaml)"),
     "robots": Param([""], "namespaces of the graphs to act in (a fleet, e.g. [/robot1, /robot2]); "
                           "'' = this node's own"),
+    "checkpoint": Param("", "policy learn: the reward model's checkpoint, settable while running (the "
+                            "trainer sets it): the replay buffer is relabelled with it once RewardStep.source "
+                            "names it ('' = never relabel)"),
 }
 
 
@@ -91,6 +102,7 @@ class AgentNode(Node):
             if p["observe"] != "reward_step":
                 raise NodeError("policy learn needs observe reward_step (rewards come with RewardStep)")
             self.learner = Learner(self, p)
+            live_parameter(self, PARAMETERS, "checkpoint", self.learner.new_checkpoint)
         elif self.policy != "random":
             raise NodeError(f"unknown policy {self.policy!r}: use 'random', 'sb3' or 'learn'")
         self.robots = list(p["robots"]) or [""]
@@ -217,6 +229,8 @@ class Learner:
         self.t0 = time.monotonic()
         self.outcome = "not started"
         self.source = ""
+        self.checkpoint = str(p["checkpoint"])  # the model to relabel with once it is served
+        self.relabelled = self.checkpoint        # the model the replay buffer's labels are from
         node.get_logger().info(f"learning {self.algo} on {self.task} for {self.episodes} episodes, "
                                f"seed {self.seed}, output {self.out}")
 
@@ -233,6 +247,18 @@ class Learner:
     def on_label(self, msg: TrajectoryReturn, robot: int = 0) -> None:
         with self.lock:
             self.labels[(robot, int(msg.episode))] = float(msg.return_value)
+
+    def new_checkpoint(self, value: str) -> str:
+        """The `checkpoint` parameter set while running: relabel with it once it is served."""
+        if value and not self._checkpoint_file(value).is_file():
+            return f"no checkpoint {value}"
+        self.checkpoint = str(value)
+        return ""
+
+    @staticmethod
+    def _checkpoint_file(value: str) -> Path:
+        path = Path(value)
+        return path if path.suffix == ".pt" else path.with_name(path.name + ".pt")
 
     def start(self, observation_size: int) -> None:
         import gymnasium as gym
@@ -281,7 +307,8 @@ class Learner:
             monitored = [lambda env=env: Monitor(env) for env in self.envs]
             vec = ThreadedVecEnv(monitored) if len(monitored) > 1 else DummyVecEnv(monitored)
             self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed)
-            callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode)
+            callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode,
+                                            between_steps=self.relabel_if_served)
             self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
             self.outcome = f"finished {self.episodes} episodes"
         except LearnerStopped:
@@ -295,6 +322,35 @@ class Learner:
             self.done.set()
             if self.node.exit_code is None:
                 self.node.exit_code = 0 if not self.outcome.startswith("failed") else 1
+
+    def relabel_if_served(self) -> None:
+        """Learner thread, between steps: relabel the replay buffer with `checkpoint` once a
+        robot's current episode is served by it (RewardStep.source = its file name)."""
+        wanted = self.checkpoint
+        if not wanted or wanted == self.relabelled or self.model is None:
+            return
+        name = self._checkpoint_file(wanted).with_suffix("").name
+        if name not in {env.source for env in self.envs}:
+            return  # the reward model serves it from its next episode start
+        from ..mil import CheckpointError, OnlineRewardModel, load_checkpoint
+        from ..mil.served_state import checkpoint_served_state
+        from ..rl.replay_relabel import relabel_replay_buffer
+
+        self.relabelled = wanted
+        log = self.node.get_logger()
+        try:
+            model, meta = load_checkpoint(wanted, task=self.task)
+            stepper = OnlineRewardModel(model, served=checkpoint_served_state(meta))
+            d = self.node.info.state_size
+            width = self.model.observation_space.shape[0]
+            if self.use_hidden and width != d + stepper.served_size:
+                raise ValueError(f"it serves {stepper.served_size} hidden values, the agent observes {width - d}")
+            t0 = time.monotonic()
+            n = relabel_replay_buffer(self.model.replay_buffer, stepper, d)
+        except (CheckpointError, ValueError, OSError) as exc:
+            log.error(f"replay buffer not relabelled with {wanted}: {exc}")
+            return
+        log.info(f"replay buffer relabelled with {name}: {n} transitions in {time.monotonic() - t0:.1f} s")
 
     def on_episode(self, rec, info: dict) -> None:
         key = (info.get("robot", 0), info.get("episode_id", -1))

@@ -8,8 +8,9 @@ corrects. Every `retrain_every` new labels it trains a `members`-member ensemble
 labelled episodes in a child process (`python -m nmrm_ros.mil.retrain`, warm-started from the
 previous version: the newest in `out_dir`, else `checkpoint`), writes the checkpoint
 `out_dir/<task>_vNNN` (numbering goes on after the versions already there) and sets the `checkpoint` parameter of
-`reward_model` (which swaps it in at its next episode start) and of `labeller_web` (which orders
-its queue by the new members' disagreement). Labels that arrive during a training count towards
+`reward_model` (which swaps it in at its next episode start), of `labeller_web` (which orders
+its queue by the new members' disagreement) and of `agent` if named (a learning agent, which
+relabels its replay buffer with it once it is served). Labels that arrive during a training count towards
 the next one. Every version records the labels it was built from (labeller, source, episode,
 return, when) in its checkpoint's JSON (`nmrm labels report --checkpoint C` lists them).
 
@@ -40,10 +41,12 @@ from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 
 from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
+from ..ros.node_main import NodeError, Param, declare_parameters, exit_with_upstream, require_task, run_node
 from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 PARAMETERS = {
+    "exit_with_upstream": Param(False, "exit (code 0) once the episodes' and labels' publishers have all left, "
+                                       "after the retraining in progress (e.g. when the loop's env_sim has finished)"),
     "task": Param("key", "task of the episodes and labels"),
     "labeller": Param(["person/"], "labels used: labeller ids, or prefixes ending in '/' (e.g. "
                                    "[person/alice, person/bob]); '' = any"),
@@ -56,6 +59,8 @@ PARAMETERS = {
     "out_dir": Param("checkpoints", "where the versioned checkpoints <task>_vNNN.{pt,json} go"),
     "reward_model": Param("reward_model", "node told to load each new checkpoint ('' = none)"),
     "labeller_web": Param("labeller_web", "node whose queue each new checkpoint orders ('' = none)"),
+    "agent": Param("", "learning agent told each new checkpoint, to relabel its replay buffer with it "
+                       "once served (e.g. agent; '' = none)"),
     "bags": Param([""], "recordings and labels bags read at start (labels of `labeller`)"),
     "feedback": Param("returns", "what to learn from: returns | preferences (comparisons) | both"),
 }
@@ -102,12 +107,16 @@ class TrainerNode(Node):
         self.follower = EpisodeFollower()
         self.states: list = []
         self._read_bags([b for b in p["bags"] if b])
-        self.param_clients = {name: self._client(name) for name in (p["reward_model"], p["labeller_web"]) if name}
-        self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
+        self.param_clients = {name: self._client(name) for name in (p["reward_model"], p["labeller_web"], p["agent"]) if name}
+        subs = [self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)]
         if p["feedback"] != "preferences":
-            self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label, STEP_QOS)
+            subs.append(self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label, STEP_QOS))
         if p["feedback"] != "returns":
-            self.create_subscription(TrajectoryPreference, TRAJECTORY_PREFERENCE, self.on_comparison, STEP_QOS)
+            subs.append(self.create_subscription(TrajectoryPreference, TRAJECTORY_PREFERENCE, self.on_comparison,
+                                                 STEP_QOS))
+        self.upstream_gone = False
+        if p["exit_with_upstream"]:
+            exit_with_upstream(self, subs, on_gone=self._upstream_left)
         self.create_timer(0.5, self.poll)
         self.get_logger().info(
             f"task {self.task}: retraining a {p['members']}-member {p['architecture']} from {p['feedback']} every "
@@ -202,8 +211,14 @@ class TrainerNode(Node):
                  if (m := re.fullmatch(rf"{re.escape(self.task)}_v(\d+)\.json", f.name))]
         return max(found, default=0)
 
+    def _upstream_left(self) -> None:
+        self.upstream_gone = True
+        what = f"after {self.job['name']}" if self.child is not None else "now"
+        self.get_logger().info(f"episodes and labels have no publishers left; exiting {what}")
+        self.poll()
+
     def maybe_retrain(self) -> None:
-        if self.child is not None or self.new_labels < self.p["retrain_every"]:
+        if self.child is not None or self.new_labels < self.p["retrain_every"] or self.upstream_gone:
             return
         try:
             ds = self.set.dataset()
@@ -230,6 +245,8 @@ class TrainerNode(Node):
         self.get_logger().info(f"retraining {name} on {len(ds)} episode(s){compared}")
 
     def poll(self) -> None:
+        if self.upstream_gone and self.child is None and self.exit_code is None:
+            self.exit_code = 0
         if self.child is None or self.child.poll() is None:
             return
         out, err = self.child.communicate()
@@ -253,6 +270,8 @@ class TrainerNode(Node):
             for client in self.param_clients.values():
                 self._tell(client, self.latest)
         self.maybe_retrain()
+        if self.upstream_gone and self.child is None:
+            self.exit_code = 0
 
     # -- telling the other nodes -------------------------------------------------------------------
     def _client(self, name: str):

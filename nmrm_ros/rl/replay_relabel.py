@@ -22,8 +22,9 @@ from .wrappers import HiddenStateStepper
 def relabel_replay_buffer(buffer, stepper: HiddenStateStepper, state_size: int) -> int:
     """Recompute the reward and the served state of every transition in an SB3 `ReplayBuffer`
     with `stepper` (e.g. an `OnlineRewardModel` of the new model), episode by episode in the order
-    they were stored (episodes end where `dones` is set). Observations are [s (state_size), served];
-    the served part must keep its size. Returns the number of transitions relabelled."""
+    they were stored (episodes end where `dones` is set). Observations are [s (state_size), served]
+    (the served part must keep its size) or s only (then the rewards alone are relabelled).
+    Returns the number of transitions relabelled."""
     if getattr(buffer, "optimize_memory_usage", False) or buffer.next_observations is None:
         raise ValueError("relabelling needs a replay buffer with next_observations "
                          "(optimize_memory_usage=False)")
@@ -31,6 +32,7 @@ def relabel_replay_buffer(buffer, stepper: HiddenStateStepper, state_size: int) 
     order = (np.arange(size) + buffer.pos) % size if buffer.full else np.arange(size)
     d = int(state_size)
     obs, nxt = buffer.observations, buffer.next_observations
+    hidden = obs.shape[-1] > d
     for env in range(buffer.n_envs):
         current = None  # (r'_t, served_{t+1}) of the transition's first state, once stepped
         for idx in order:
@@ -38,9 +40,10 @@ def relabel_replay_buffer(buffer, stepper: HiddenStateStepper, state_size: int) 
                 stepper.reset()
                 current = stepper.step(obs[idx, env, :d].astype(np.float64))
             reward, served = current
-            obs[idx, env, d:] = served
             buffer.rewards[idx, env] = reward
             following = stepper.step(nxt[idx, env, :d].astype(np.float64))
-            nxt[idx, env, d:] = following[1]
+            if hidden:
+                obs[idx, env, d:] = served
+                nxt[idx, env, d:] = following[1]
             current = None if buffer.dones[idx, env] else following
     return int(size * buffer.n_envs)

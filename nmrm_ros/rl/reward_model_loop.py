@@ -119,6 +119,7 @@ class LoopRounds(EpisodeCurveCallback):
         return go_on
 
     def _on_rollout_start(self) -> None:
+        super()._on_rollout_start()
         if not self._pending or self._stop_next:
             return
         self._pending = False

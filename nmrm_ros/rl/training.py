@@ -81,16 +81,23 @@ class LearningCurve:
 class EpisodeCurveCallback(BaseCallback):
     """Records every finished episode's oracle and learnt returns (from the wrappers' `info`) and
     stops learning after `max_episodes` episodes (Lunar Lander's episodes can end early).
-    `on_episode(record, info)` is called for each, with the episode's final `info`."""
+    `on_episode(record, info)` is called for each, with the episode's final `info`;
+    `between_steps()` before each of SB3's rollouts (after a step's transition is stored and
+    trained on, before the agent acts again: e.g. to relabel the replay buffer)."""
 
-    def __init__(self, max_episodes: int | None = None, on_episode=None) -> None:
+    def __init__(self, max_episodes: int | None = None, on_episode=None, between_steps=None) -> None:
         super().__init__()
         self.curve = LearningCurve()
         self.max_episodes = max_episodes
         self.on_episode = on_episode
+        self.between_steps = between_steps
         self._steps: np.ndarray | None = None
         self._stop_next = False
         self._t0 = time.perf_counter()
+
+    def _on_rollout_start(self) -> None:
+        if self.between_steps is not None:
+            self.between_steps()
 
     def _on_step(self) -> bool:
         # SB3 calls this after env.step() and before storing the transition: stop at the step

@@ -295,8 +295,9 @@ EXIT_WITH_UPSTREAM = Param(False, "exit (code 0) once the input topic had publis
                                   "left, e.g. when env_sim finished its episodes (set in launch files)")
 
 
-def exit_with_upstream(node, subscriptions, period: float = 0.2) -> None:
-    """Make `node` end (exit_code 0) when its subscription(s) had publishers and have none left.
+def exit_with_upstream(node, subscriptions, period: float = 0.2, on_gone=None) -> None:
+    """Make `node` end (exit_code 0) when its subscription(s) had publishers and have none left
+    (or call `on_gone()` once then, for a node that has work to finish first).
 
     This is how a launched graph finishes after env_sim's last episode, under `ros2 launch` as
     well as `nmrm launch`: each consumer leaves once its producers have left. A producer that came
@@ -309,7 +310,11 @@ def exit_with_upstream(node, subscriptions, period: float = 0.2) -> None:
         count = sum(s.get_publisher_count() for s in subs)
         if count > 0 or getattr(node, "messages_received", 0) > 0:
             state["seen"] = True
-        if state["seen"] and count == 0 and getattr(node, "exit_code", None) is None:
+        if state["seen"] and count == 0 and getattr(node, "exit_code", None) is None and not state.get("gone"):
+            state["gone"] = True
+            if on_gone is not None:
+                on_gone()
+                return
             node.get_logger().info("input topic has no publishers left; exiting")
             node.exit_code = 0
 

@@ -57,6 +57,7 @@ class TopicEnv(gym.Env):
         self.inbox: queue.Queue = queue.Queue()
         self._held = None          # a step 0 that arrived while an episode was still running
         self.episode: int | None = None
+        self.source = ""
         self.t = 0
         self._pending = 0.0
         self._return = 0.0
@@ -102,6 +103,7 @@ class TopicEnv(gym.Env):
                 break
             self.skipped += 1
         self.episode, self.t = int(msg.episode), 0
+        self.source = str(getattr(msg, "source", ""))  # who serves this episode (RewardStep.source)
         self._pending, self._return = float(msg.reward), 0.0
         self._last_obs = self._observe(msg)
         return self._last_obs, {"episode_id": self.episode, "robot": self.robot}
