@@ -2,14 +2,17 @@
 trained on the CSC Instance Space LSTM's rewards and hidden states, against the oracle with its
 hidden state, the oracle without it, and the Markovian Instance Space NN.
 
-    .venv/bin/python bench/reproduce_rl.py                      # 3 seeds, 400 episodes, 4 tasks
+    .venv/bin/python bench/reproduce_rl.py --seeds 0 1 2 3 4    # 5 runs per cell, 400 episodes, 4 tasks
     .venv/bin/python bench/reproduce_rl.py --seeds 0 --tasks key --episodes 100   # a quick look
 
-Seed s pairs one MIL model with one agent, as the paper does: the reward models are trained with
-weight seed s on split s of one screened dataset per task (data seed 0, 5000 episodes; the
-hyperparameters of config/mil_training.yaml) and cached under --work/models; agent s is trained
-with seed s (SB3 seed; episode e of the env is seeded s + e, as env_sim's). Every agent is judged by the
-oracle (post hoc). Hyperparameters: config/rl.yaml.
+Run r pairs MIL repeat r with agent seed r, as the paper does. MIL repeat r is the task's default
+model (config/mil_training.yaml: Timer, Moving, Key and Charger the mean of 3 models) trained as
+bench/any_dataset.py's repeat r: on split r of a screened dataset of data seed r (5000 episodes),
+member j with weight seed r + 1000 j; the Markovian Instance Space NN is trained alike. Models are
+cached under --work/models. Agent r is trained with seed r (SB3 seed; episode e of the env is
+seeded r + e, as env_sim's) and served what the model's config says (served_state). Every agent is
+judged by the oracle (post hoc). Hyperparameters: config/rl.yaml. Medians and interquartile
+ranges over runs are plotted (as the paper's Figure 4), mean ± SEM [worst] tabulated.
 
 Output (bench/results/): reproduce_rl.png (oracle-return curves, mean +/- SEM over seeds, a
 moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
@@ -46,25 +49,26 @@ def model_path(work: Path, task: str, arch: str, seed: int) -> Path:
 
 
 def train_reward_model(job: tuple) -> dict:
-    """Train (or reuse) the MIL model of (task, arch, seed); returns its test metrics."""
+    """Train (or reuse) MIL repeat `seed` of (task, arch); returns its test metrics."""
     work, task, arch, seed = job
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.datasets import generate_screened
+    from reproduce_tables import load_dataset
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
 
     out = model_path(work, task, arch, seed)
     meta_file = out.with_suffix(".json")
     if meta_file.is_file():
         meta = json.loads(meta_file.read_text())
         return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
-    ds = generate_screened(task, 5000, seed=0)
+    ds = load_dataset(task, 5000, seed)
     cfg = load_train_config(task, seed=seed)
-    run = train_and_evaluate(ds, arch, cfg, split_seed=seed, out=out, progress=False,
-                             data_source=f"screened:{task}:n=5000:seed=0")
-    return {"task": task, "arch": arch, "seed": seed, **run.test_metrics,
+    run = train_ensemble_and_evaluate(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
+                                      data_source=f"screened:{task}:n=5000:seed={seed}",
+                                      offsets=[1000 * j for j in range(cfg.members)])
+    return {"task": task, "arch": arch, "seed": seed, **run.ensemble_test,
             "seconds": run.train.seconds, "cached": False}
 
 
@@ -99,7 +103,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="*", default=list(TASKS))
     parser.add_argument("--kinds", nargs="*", default=list(KINDS), choices=list(KINDS))
-    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
+    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--episodes", type=int, default=400)
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"),
@@ -143,56 +147,56 @@ def report(args, seconds: float) -> None:
 
     args.results.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, len(args.tasks), figsize=(4.2 * len(args.tasks), 3.4), squeeze=False)
-    lines = [f"# Figure 4: final oracle return (mean of the last {FINAL_WINDOW} of {args.episodes} episodes), "
-             f"mean ± SEM over the seeds run (n) of {args.seeds}; worst seed in brackets",
+    lines = [f"# Figure 4: final oracle return (mean of the last {FINAL_WINDOW} of {args.episodes} episodes) "
+             f"over the runs done (n) of seeds {args.seeds}: median [interquartile range]; mean ± SEM [worst]",
              f"# command: .venv/bin/python bench/reproduce_rl.py --tasks {' '.join(args.tasks)} "
              f"--kinds {' '.join(args.kinds)} --seeds {' '.join(map(str, args.seeds))} --episodes {args.episodes}",
-             f"{'reward':32s} " + " ".join(f"{t:>28s}" for t in args.tasks)]
+             f"{'task':8s} {'reward':32s} {'n':>2s} {'median [IQR]':>24s} {'mean ± SEM [worst]':>26s}  per run"]
     finals = {}
     for i, task in enumerate(args.tasks):
         ax = axes[0][i]
         for kind in args.kinds:
-            curves = []
+            curves, seeds = [], []
             for seed in args.seeds:
                 path = args.work / "agents" / f"{task}_{kind}_seed{seed}" / "curve.csv"
                 if path.is_file():
                     curves.append([float(r["oracle_return"]) for r in read_curve(path)])
+                    seeds.append(seed)
             if not curves:
                 continue
             n = min(len(c) for c in curves)
             arr = np.array([c[:n] for c in curves])
-            finals[(task, kind)] = arr[:, -FINAL_WINDOW:].mean(axis=1)
+            finals[(task, kind)] = (arr[:, -FINAL_WINDOW:].mean(axis=1), seeds)
             smooth = np.array([np.convolve(c, np.ones(20) / 20, mode="valid") for c in arr])
-            mean = smooth.mean(axis=0)
-            sem = smooth.std(axis=0, ddof=1) / np.sqrt(len(smooth)) if len(smooth) > 1 else 0 * mean
-            x = np.arange(len(mean)) + 20
-            ax.plot(x, mean, label=KINDS[kind][0])
-            ax.fill_between(x, mean - sem, mean + sem, alpha=0.25)
+            q25, med, q75 = np.percentile(smooth, [25, 50, 75], axis=0)
+            x = np.arange(len(med)) + 20
+            ax.plot(x, med, label=KINDS[kind][0])
+            ax.fill_between(x, q25, q75, alpha=0.25)
         ax.set_title(task.capitalize())
         ax.set_xlabel("episode")
         if i == 0:
-            ax.set_ylabel("oracle return")
+            ax.set_ylabel("oracle return (median, IQR)")
     axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     png = args.results / "reproduce_rl.png"
     fig.savefig(png, dpi=120)
-    for kind in args.kinds:
-        cells = []
-        for task in args.tasks:
-            v = finals.get((task, kind))
-            if v is None:
-                cells.append("-")
+    for task in args.tasks:
+        for kind in args.kinds:
+            if (task, kind) not in finals:
                 continue
+            v, seeds = finals[(task, kind)]
+            q25, med, q75 = np.percentile(v, [25, 50, 75])
             sem = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0
-            cells.append(f"{v.mean():6.2f} ± {sem:5.2f} [{v.min():6.2f}] n={len(v)}")
-        lines.append(f"{KINDS[kind][0]:32s} " + " ".join(f"{c:>28s}" for c in cells))
+            runs = ", ".join(f"{s}: {x:.1f}" for s, x in zip(seeds, v))
+            lines.append(f"{task:8s} {KINDS[kind][0]:32s} {len(v):2d} {med:7.2f} [{q25:6.2f}, {q75:6.2f}] "
+                         f"{v.mean():7.2f} ± {sem:5.2f} [{v.min():6.2f}]  {runs}")
     if "model" in args.kinds and "oracle" in args.kinds:
         ratios = []
         for task in args.tasks:
             if (task, "model") in finals and (task, "oracle") in finals:
-                o = finals[(task, "oracle")].mean()
-                ratios.append(f"{task} {finals[(task, 'model')].mean() / o:.0%}" if o > 0 else f"{task} n/a")
-        lines.append("# learnt / oracle-with-hidden final return: " + ", ".join(ratios))
+                o = np.median(finals[(task, "oracle")][0])
+                ratios.append(f"{task} {np.median(finals[(task, 'model')][0]) / o:.0%}" if o > 0 else f"{task} n/a")
+        lines.append("# median CSC / median oracle-with-hidden final return: " + ", ".join(ratios))
     if seconds:
         lines.append(f"# wall time {seconds:.0f} s on {os.cpu_count()} cores")
     lines.append(f"# curves: {png}; per run: {args.work}/agents/*/curve.csv")

@@ -228,6 +228,7 @@ class Learner:
         self.done = threading.Event()
         self.t0 = time.monotonic()
         self.outcome = "not started"
+        self.learn_seconds = 0.0
         self.source = ""
         self.checkpoint = str(p["checkpoint"])  # the model to relabel with once it is served
         self.relabelled = self.checkpoint        # the model the replay buffer's labels are from
@@ -287,9 +288,15 @@ class Learner:
             env.stop()
         if self.thread is not None:
             self.thread.join(timeout=60.0)
+        steps = sum(e.steps_taken for e in self.envs)
+        waited = sum(e.wait_seconds for e in self.envs) / max(len(self.envs), 1)
+        split = ""
+        if steps and self.learn_seconds:
+            split = (f"; per step {1e3 * self.learn_seconds / steps:.2f} ms: waiting for the graph "
+                     f"{1e3 * waited / steps:.2f} ms, learning (SB3) {1e3 * (self.learn_seconds - waited) / steps:.2f} ms")
         self.node.get_logger().info(f"learner {self.outcome}; {len(self.records)} episode(s), "
                                     f"{sum(e.skipped for e in self.envs)} message(s) skipped, "
-                                    f"{sum(e.broken for e in self.envs)} episode(s) cut short")
+                                    f"{sum(e.broken for e in self.envs)} episode(s) cut short{split}")
 
     # -- learner thread ----------------------------------------------------------------------------
     def run(self) -> None:
@@ -309,7 +316,11 @@ class Learner:
             self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed)
             callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode,
                                             between_steps=self.relabel_if_served)
-            self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
+            t0 = time.monotonic()
+            try:
+                self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
+            finally:
+                self.learn_seconds = time.monotonic() - t0
             self.outcome = f"finished {self.episodes} episodes"
         except LearnerStopped:
             self.outcome = "stopped by shutdown"

@@ -66,6 +66,10 @@ class TopicEnv(gym.Env):
         #: messages that were not the awaited one (stale, from another episode...), and cut episodes
         self.skipped = 0
         self.broken = 0
+        #: seconds the learner spent waiting for the graph (in step/reset) and the steps taken: the
+        #: rest of its time is the learner's own (SB3: acting, storing, gradient steps)
+        self.wait_seconds = 0.0
+        self.steps_taken = 0
 
     # -- feeding (node thread) ---------------------------------------------------------------------
     def put(self, msg) -> None:
@@ -81,7 +85,9 @@ class TopicEnv(gym.Env):
             if self.stop_event.is_set():
                 raise LearnerStopped()
             try:
-                return self.inbox.get(timeout=0.1)
+                msg = self.inbox.get(timeout=0.1)
+                self.wait_seconds += time.monotonic() - waited
+                return msg
             except queue.Empty:
                 if self.timeout and time.monotonic() - waited > self.timeout:
                     raise TimeoutError(f"no RewardStep for {self.timeout:.0f} s") from None
@@ -138,6 +144,7 @@ class TopicEnv(gym.Env):
         reward = self._pending
         self._return += reward
         self.t += 1
+        self.steps_taken += 1
         self._pending = float(msg.reward)
         self._last_obs = self._observe(msg)
         info = {"episode_id": self.episode, "robot": self.robot, "learnt_reward": reward}
