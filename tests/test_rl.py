@@ -293,3 +293,16 @@ def test_threaded_vec_env_steps_its_envs_at_once():
     vec.step(np.zeros(4, dtype=int))
     assert time.monotonic() - t0 < 0.6  # sequentially: 0.8 s
     vec.close()
+
+
+def test_a_policy_without_agent_json_is_evaluated_on_its_checkpoints_own_served_state(checkpoints):
+    """A trained model object (no agent.json) observed [h', tanh c'] (the checkpoint's default, the
+    same size as [h', c']): evaluation must serve it that, not guess [h', c'] from the size; a
+    policy of h' alone is still told apart by its size."""
+    from nmrm_ros.rl.evaluation import served_state_of
+
+    run = train_agent("key", "model", checkpoint=checkpoints["key"], episodes=1, seed=0, progress=False)
+    assert run.model.observation_space.shape == (2 + 4,)
+    assert served_state_of(run.model, "key", checkpoints["key"], {}) == "h_tanh_c"
+    run = train_agent("key", "model", checkpoint=checkpoints["key"], episodes=1, seed=0, progress=False, served="h")
+    assert served_state_of(run.model, "key", checkpoints["key"], {}) == "h"

@@ -27,12 +27,13 @@ def test_graph_learner_sees_the_same_transitions_as_the_wrapper(ros_domain, tmp_
     """env_sim -> reward_model (a CSC checkpoint) -> agent learning, seed 3, 2 episodes, learning
     from step 50: the agent's replay buffer equals the one of the same run through the gymnasium
     wrapper (observations [s_t, h'_{t+1}], actions, rewards r'_t, next observations, dones), so the
-    wrapper's rewards are the reward_model node's and learning is the same with or without ROS."""
+    wrapper's rewards are the reward_model node's and learning is the same with or without ROS
+    (in SB3's order: overlap_training false)."""
     out = tmp_path / "policy"
     procs = [
         start("reward_model", mode="model", checkpoint=key_checkpoint, task="key", exit_with_upstream=True),
         start("agent", task="key", policy="learn", seed=3, episodes=2, learning_starts=50, out=out,
-              save_replay_buffer=True, log_every=1, exit_with_upstream=True),
+              save_replay_buffer=True, log_every=1, exit_with_upstream=True, overlap_training=False),
         start("env_sim", task="key", seed=3, episodes=2, wait_for_nodes="[reward_model]"),
     ]
     outputs = [finish(p, timeout=120) for p in procs]

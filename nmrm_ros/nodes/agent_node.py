@@ -73,6 +73,9 @@ PARAMETERS = {
     "rl_config": Param("", "policy learn: RL config YAML (default config/rl.yaml)"),
     "robots": Param([""], "namespaces of the graphs to act in (a fleet, e.g. [/robot1, /robot2]); "
                           "'' = this node's own"),
+    "overlap_training": Param(True, "policy learn, one robot: run each gradient step while the graph computes the "
+                                    "next state (one step behind SB3's order, nmrm_ros/rl/overlapped_training.py); "
+                                    "false: SB3's order, the same transitions and weights as `nmrm rl train`"),
     "checkpoint": Param("", "policy learn: the reward model's checkpoint, settable while running (the "
                             "trainer sets it): the replay buffer is relabelled with it once RewardStep.source "
                             "names it ('' = never relabel)"),
@@ -218,6 +221,7 @@ class Learner:
         self.save_every = int(p["save_every"])
         self.log_every = max(1, int(p["log_every"]))
         self.use_hidden = bool(p["observe_hidden"])
+        self.overlap = bool(p["overlap_training"])
         self.save_buffer = bool(p["save_replay_buffer"])
         self.envs: list = []  # one TopicEnv per robot
         self.model = None
@@ -314,6 +318,9 @@ class Learner:
             monitored = [lambda env=env: Monitor(env) for env in self.envs]
             vec = ThreadedVecEnv(monitored) if len(monitored) > 1 else DummyVecEnv(monitored)
             self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed)
+            if self.overlap and len(self.envs) == 1:  # a fleet's envs step in threads of their own
+                self.model.overlap_training = True
+                self.envs[0].after_publish = self.model.train_pending
             callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode,
                                             between_steps=self.relabel_if_served)
             t0 = time.monotonic()

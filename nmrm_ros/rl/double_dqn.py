@@ -16,6 +16,8 @@ import torch as th
 import torch.nn.functional as F
 from stable_baselines3 import DQN
 
+from .overlapped_training import OverlappedTraining
+
 
 def double_q_target(q_online_next: th.Tensor, q_target_next: th.Tensor, rewards: th.Tensor,
                     dones: th.Tensor, discounts: th.Tensor | float) -> th.Tensor:
@@ -29,11 +31,11 @@ def double_q_target(q_online_next: th.Tensor, q_target_next: th.Tensor, rewards:
     return rewards + (1.0 - dones) * discounts * th.gather(q_target_next, 1, best)
 
 
-class DoubleDQN(DQN):
+class DoubleDQN(OverlappedTraining, DQN):
     """stable-baselines3 DQN with the double Q-learning target (see the module docstring).
 
     Takes DQN's parameters unchanged. `double_q=False` gives SB3's plain DQN target back (for
-    comparisons).
+    comparisons). `overlap_training`: see `overlapped_training`.
     """
 
     def __init__(self, *args, double_q: bool = True, **kwargs) -> None:
@@ -41,6 +43,8 @@ class DoubleDQN(DQN):
         super().__init__(*args, **kwargs)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        if self._defer_train(gradient_steps, batch_size):
+            return
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         losses = []

@@ -74,15 +74,21 @@ def _reward_kind(model, task: str, checkpoint, meta: dict, oracle: str = "") -> 
 
 
 def served_state_of(model, task: str, checkpoint, meta: dict) -> str:
-    """What of the reward model's state a policy observes: agent.json's `served_state`, else (a
+    """What of the reward model's state a policy observes: agent.json's `served_state`, else the
+    checkpoint's own (its training config's) if the policy's observation has its size, else (a
     policy saved before it was recorded) inferred from its observation size: [h', c'] or h'."""
     if meta.get("served_state"):  # "hc": the raw [h', c'], as policies of 2026-12-02 named it
         return {"hc": "h_c"}.get(meta["served_state"], meta["served_state"])
     from ..mil import load_checkpoint
+    from ..mil.served_state import checkpoint_served_state, served_size
     from ..tasks import task_info
 
-    k = load_checkpoint(checkpoint, task=task)[0].hidden_size
+    reward_model, checkpoint_meta = load_checkpoint(checkpoint, task=task)
+    k = reward_model.hidden_size
     extra = model.observation_space.shape[0] - task_info(task).state_size
+    own = checkpoint_served_state(checkpoint_meta)
+    if extra == served_size(k, own):
+        return own
     if extra == 2 * k:
         return "h_c"
     if extra == k:

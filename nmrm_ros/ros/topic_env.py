@@ -70,6 +70,8 @@ class TopicEnv(gym.Env):
         #: rest of its time is the learner's own (SB3: acting, storing, gradient steps)
         self.wait_seconds = 0.0
         self.steps_taken = 0
+        #: called after each action is published, before waiting for the answer (or None)
+        self.after_publish: Callable[[], None] | None = None
 
     # -- feeding (node thread) ---------------------------------------------------------------------
     def put(self, msg) -> None:
@@ -124,6 +126,8 @@ class TopicEnv(gym.Env):
             return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, {"after_last_episode": True}
         self._action = [float(x) for x in np.asarray(action, dtype=np.float64).reshape(-1)]
         self.publish_action(self.episode, self.t, self._action)
+        if self.after_publish is not None:  # e.g. the learner's gradient step, while the graph works
+            self.after_publish()
         while True:
             msg = self._next()
             if msg.episode == self.episode and msg.step == self.t:
