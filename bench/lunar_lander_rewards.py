@@ -1,0 +1,162 @@
+"""Where Lunar Lander's CSC model pays its rewards, and what each fix does to it (issue 31).
+
+    .venv/bin/python bench/lunar_lander_rewards.py --variants default reward_l1 mean_of_3 --seeds 0 1
+    .venv/bin/python bench/lunar_lander_rewards.py --report
+
+A model can fit the returns and still pay its rewards in the wrong places: every episode here has
+500 steps, so a zero-sum function of time added to the rewards, or credit moved from one phase of
+an episode to another, leaves every return unchanged (the deferred-credit analysis of Timer,
+docs/results/findings.md). So besides the two MSEs, each run is scored by **where** it pays: on its
+test split, the steps are grouped by the oracle's phase and component, and the model's mean reward
+per step in each group is set beside the oracle's:
+
+- pad: landing phase (fewer than 50 steps on the pad so far), both legs on the pad (oracle pays 1 + shaping);
+- landing, off the pad: landing phase, elsewhere (shaping only);
+- hover: after 50 steps on the pad, in the hover zone, no contact (1 + 1 + shaping);
+- after, elsewhere: after 50 steps on the pad, outside the zone or touching the ground.
+
+and the same groups along the "correct" probe (lands, stays 60 steps, hovers; `nmrm explain`).
+
+Variants (train-config overrides on config/mil_training.yaml's lunar_lander entry):
+default; reward_l1 (an L1 prior on per-step rewards, 0.05 as Timer's); mean_of_3 (members 3);
+paper_lr (lr 1e-4 constant, 200 epochs, the paper's App. D.4 settings at our batch 32).
+Run (variant, seed s): weights s + 1000 j, split s, of the screened dataset of data seed 0 (5000
+episodes). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json.
+"""
+
+from __future__ import annotations
+
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
+import argparse
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results" / "lunar_lander" / "rewards"
+VARIANTS = {
+    "default": {},
+    "reward_l1": {"reward_l1": 0.05},
+    "mean_of_3": {"members": 3},
+    "paper_lr": {"lr": 1e-4, "max_epochs": 200, "schedule": "constant", "warmup_epochs": 0},
+}
+GROUPS = ("pad", "landing, off the pad", "hover", "after, elsewhere")
+
+
+def phase_groups(states: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(group index (n, L) int, -1 beyond a length; oracle rewards (n, L)) of trajectories."""
+    from nmrm_ros.oracles import make_oracle
+    from nmrm_ros.oracles.lunar_lander import PAD_TARGET
+
+    oracle = make_oracle("lunar_lander")
+    labels = oracle.label(states, lengths=lengths)
+    parts = oracle.label_components(states, lengths)
+    landing = labels.hidden[..., 0] < PAD_TARGET
+    group = np.where(landing, np.where(parts["pad"] > 0, 0, 1), np.where(parts["hover"] > 0, 2, 3))
+    live = np.arange(states.shape[1])[None, :] < lengths[:, None]
+    return np.where(live, group, -1), labels.rewards
+
+
+def learnt_rewards(model, states: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The model's per-step rewards (n, L) (the members' mean), stepped online as served."""
+    from nmrm_ros.mil import OnlineRewardModel
+
+    online = OnlineRewardModel(model)
+    out = np.zeros(states.shape[:2])
+    for i, (episode, n) in enumerate(zip(states, lengths)):
+        online.reset()
+        out[i, :n] = [online.step(s)[0] for s in episode[:n]]
+    return out
+
+
+def placement(group: np.ndarray, learnt: np.ndarray, oracle: np.ndarray) -> dict:
+    """group name -> {steps, learnt, oracle}: mean reward per step of each."""
+    return {name: {"steps": int((group == g).sum()),
+                   "learnt": float(learnt[group == g].mean()) if (group == g).any() else float("nan"),
+                   "oracle": float(oracle[group == g].mean()) if (group == g).any() else float("nan")}
+            for g, name in enumerate(GROUPS)}
+
+
+def run(job: tuple) -> dict:
+    variant, seed = job
+    done = RESULTS / f"{variant}_s{seed}.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    import torch
+
+    torch.set_num_threads(1)
+    from reproduce_tables import load_dataset
+    from nmrm_ros.interpret.lander_probes import rollout_probe, LANDER_PROBES
+    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil.data import split_indices
+    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+
+    ds = load_dataset("lunar_lander", 5000, 0)
+    overrides = dict(VARIANTS[variant])
+    cfg = load_train_config("lunar_lander", seed=seed, **overrides)
+    t0 = time.perf_counter()
+    result = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,
+                                         offsets=[1000 * j for j in range(cfg.members)])
+    seconds = time.perf_counter() - t0
+    _, _, test = split_indices(len(ds), seed)
+    sub = ds.subset(test)
+    group, oracle = phase_groups(sub.states, sub.lengths)
+    learnt = learnt_rewards(result.ensemble, sub.states, sub.lengths)
+    probe = next(p for p in LANDER_PROBES if p.name == "correct")
+    p_states = rollout_probe(probe)[None]
+    p_len = np.array([p_states.shape[1]])
+    p_group, p_oracle = phase_groups(p_states, p_len)
+    p_learnt = learnt_rewards(result.ensemble, p_states, p_len)
+    res = {"variant": variant, "seed": seed, "overrides": overrides, "members": cfg.members,
+           "test": result.ensemble_test, "epochs": result.train.epochs_run,
+           "best_epochs": result.train.best_epochs, "still_improving": result.train.still_improving,
+           "seconds": seconds, "test_placement": placement(group, learnt, oracle),
+           "probe_correct": placement(p_group, p_learnt, p_oracle),
+           "probe_returns": {"learnt": float(p_learnt.sum()), "oracle": float(p_oracle.sum())}}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    done.write_text(json.dumps(res, indent=1, default=float))
+    return res
+
+
+def report() -> str:
+    runs = sorted((json.loads(p.read_text()) for p in RESULTS.glob("*.json")), key=lambda r: (r["variant"], r["seed"]))
+    lines = ["# bench/lunar_lander_rewards.py: CSC on Lunar Lander (data seed 0, split = weight seed s); mean reward per "
+             "step, learnt / oracle, by the oracle's phase (test split, and the 'correct' probe)",
+             f"{'variant':10s} {'s':>2s} {'ret MSE':>8s} {'rew MSE':>9s} "
+             + " ".join(f"{g:>22s}" for g in GROUPS) + f" {'probe: ' + ' / '.join(GROUPS):>60s}  epochs"]
+    for r in runs:
+        t = r["test_placement"]
+        p = r["probe_correct"]
+        cells = " ".join(f"{t[g]['learnt']:9.3f} / {t[g]['oracle']:9.3f}" for g in GROUPS)
+        probe = " ".join(f"{p[g]['learnt']:6.2f}/{p[g]['oracle']:5.2f}" for g in GROUPS)
+        lines.append(f"{r['variant']:10s} {r['seed']:2d} {r['test']['return_mse']:8.3f} {r['test']['reward_mse']:9.5f} "
+                     f"{cells} {probe:>60s}  {r['epochs']}")
+    text = "\n".join(lines)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "table.txt").write_text(text + "\n")
+    return text
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1])
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--report", action="store_true", help="train nothing: the table of what is there")
+    args = parser.parse_args()
+    if not args.report:
+        jobs = [(v, s) for s in args.seeds for v in args.variants if not (RESULTS / f"{v}_s{s}.json").is_file()]
+        print(f"# {len(jobs)} runs (finished ones skipped), {args.jobs} workers", flush=True)
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for (v, s), r in zip(jobs, pool.map(run, jobs)):
+                print(f"  {v} seed {s}: return MSE {r['test']['return_mse']:.3f}, reward MSE "
+                      f"{r['test']['reward_mse']:.5f} ({r['seconds']:.0f} s)", flush=True)
+    print(report())
+
+
+if __name__ == "__main__":
+    main()
