@@ -2,7 +2,8 @@
 trained on the CSC Instance Space LSTM's rewards and hidden states, against the oracle with its
 hidden state, the oracle without it, and the Markovian Instance Space NN.
 
-    .venv/bin/python bench/reproduce_rl.py --seeds 0 1 2 3 4    # 5 runs per cell, 400 episodes, 4 tasks
+    .venv/bin/python bench/reproduce_rl.py --seeds 0 1 2 3 4    # 5 runs per cell, 4 navigation tasks
+    .venv/bin/python bench/reproduce_rl.py --tasks lunar_lander --kinds model oracle oracle-no-hidden --seeds 0 1 2
     .venv/bin/python bench/reproduce_rl.py --seeds 0 --tasks key --episodes 100   # a quick look
 
 Run r pairs MIL repeat r with agent seed r, as the paper does. MIL repeat r is the task's default
@@ -12,7 +13,10 @@ member j with weight seed r + 1000 j; the Markovian Instance Space NN is trained
 cached under --work/models. Agent r is trained with seed r (SB3 seed; episode e of the env is
 seeded r + e, as env_sim's) and served what the model's config says (served_state). Every agent is
 judged by the oracle (post hoc). Hyperparameters: config/rl.yaml. Medians and interquartile
-ranges over runs are plotted (as the paper's Figure 4), mean ± SEM [worst] tabulated.
+ranges over runs are plotted (as the paper's Figure 4), mean ± SEM [worst] tabulated. Episodes: the
+algorithm's config (400 for DQN on the navigation tasks, 800 for SAC on Lunar Lander) unless
+--episodes. Lunar Lander's curves are also drawn per reward component (pad, no contact, hover,
+shaping; the paper's Figure 10): reproduce_rl_lunar_lander_components.png.
 
 Output (bench/results/): reproduce_rl.png (oracle-return curves, mean +/- SEM over seeds, a
 moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
@@ -34,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 TASKS = ("timer", "moving", "key", "charger")
+ALL_TASKS = TASKS + ("lunar_lander",)
 #: reward kind -> (label, MIL architecture or None)
 KINDS = {
     "model": ("CSC Instance Space LSTM", "csc_lstm"),
@@ -74,6 +79,7 @@ def train_reward_model(job: tuple) -> dict:
 
 def train_agent_job(job: tuple) -> dict:
     work, task, kind, seed, episodes = job
+    episodes = episodes_of(task, episodes)
     import torch
 
     torch.set_num_threads(1)
@@ -94,6 +100,13 @@ def train_agent_job(job: tuple) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
+def episodes_of(task: str, episodes: int | None) -> int:
+    """`episodes`, else the task's algorithm's config (config/rl.yaml)."""
+    from nmrm_ros.rl import algorithm_name, load_rl_config
+
+    return int(episodes or load_rl_config(algorithm_name(task))["episodes"])
+
+
 def read_curve(path: Path) -> list:
     with open(path) as f:
         return list(csv.DictReader(f))
@@ -101,10 +114,10 @@ def read_curve(path: Path) -> list:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tasks", nargs="*", default=list(TASKS))
+    parser.add_argument("--tasks", nargs="*", default=list(TASKS), choices=list(ALL_TASKS))
     parser.add_argument("--kinds", nargs="*", default=list(KINDS), choices=list(KINDS))
     parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2, 3, 4])
-    parser.add_argument("--episodes", type=int, default=400)
+    parser.add_argument("--episodes", type=int, default=None, help="default: config/rl.yaml's (400 DQN, 800 SAC)")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"),
                         help="models/ and agents/ (a run whose agents/NAME/curve.csv exists is not run "
@@ -128,7 +141,7 @@ def main() -> None:
     if args.models_only:
         return
     agent_jobs = [(args.work, t, k, s, args.episodes) for s in args.seeds for t in args.tasks for k in args.kinds]
-    print(f"# {len(agent_jobs)} agents x {args.episodes} episodes, {args.jobs} workers", flush=True)
+    print(f"# {len(agent_jobs)} agents, {args.jobs} workers", flush=True)
     with ProcessPoolExecutor(args.jobs) as pool:
         for r in pool.map(train_agent_job, agent_jobs):
             curve = read_curve(Path(r["out"]) / "curve.csv")
@@ -140,17 +153,25 @@ def main() -> None:
 
 
 def report(args, seconds: float) -> None:
+    """The table and plots of every run in --work (all five tasks and four kinds that have runs,
+    whatever this invocation trained), for the seeds asked."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     args.results.mkdir(parents=True, exist_ok=True)
+    ran = lambda t, k: any((args.work / "agents" / f"{t}_{k}_seed{s}" / "curve.csv").is_file()  # noqa: E731
+                           for s in args.seeds)
+    args.tasks = [t for t in ALL_TASKS if any(ran(t, k) for k in KINDS)] or args.tasks
+    args.kinds = [k for k in KINDS if any(ran(t, k) for t in args.tasks)] or args.kinds
     fig, axes = plt.subplots(1, len(args.tasks), figsize=(4.2 * len(args.tasks), 3.4), squeeze=False)
-    lines = [f"# Figure 4: final oracle return (mean of the last {FINAL_WINDOW} of {args.episodes} episodes) "
+    episodes = ", ".join(f"{t} {episodes_of(t, args.episodes)}" for t in args.tasks)
+    lines = [f"# Figure 4: final oracle return (mean of the last {FINAL_WINDOW} episodes of {episodes}) "
              f"over the runs done (n) of seeds {args.seeds}: median [interquartile range]; mean ± SEM [worst]",
              f"# command: .venv/bin/python bench/reproduce_rl.py --tasks {' '.join(args.tasks)} "
-             f"--kinds {' '.join(args.kinds)} --seeds {' '.join(map(str, args.seeds))} --episodes {args.episodes}",
+             f"--kinds {' '.join(args.kinds)} --seeds {' '.join(map(str, args.seeds))}"
+             + (f" --episodes {args.episodes}" if args.episodes else ""),
              f"{'task':8s} {'reward':32s} {'n':>2s} {'median [IQR]':>24s} {'mean ± SEM [worst]':>26s}  per run"]
     finals = {}
     for i, task in enumerate(args.tasks):
@@ -180,6 +201,8 @@ def report(args, seconds: float) -> None:
     fig.tight_layout()
     png = args.results / "reproduce_rl.png"
     fig.savefig(png, dpi=120)
+    if "lunar_lander" in args.tasks:
+        plot_components(args)
     for task in args.tasks:
         for kind in args.kinds:
             if (task, kind) not in finals:
@@ -209,6 +232,39 @@ def report(args, seconds: float) -> None:
         for name in ("curve.csv", "agent.json"):
             if (path.parent / name).is_file():
                 (kept / path.parent.name / name).write_bytes((path.parent / name).read_bytes())
+
+
+def plot_components(args) -> None:
+    """Lunar Lander's oracle return per reward component along training (the paper's Figure 10):
+    median and interquartile range over runs, a moving average of 20 episodes."""
+    import matplotlib.pyplot as plt
+
+    names = ("pad", "no_contact", "hover", "shaping")
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    for kind in args.kinds:
+        runs = []
+        for seed in args.seeds:
+            path = args.work / "agents" / f"lunar_lander_{kind}_seed{seed}" / "curve.csv"
+            if path.is_file():
+                rows = read_curve(path)
+                if rows and f"oracle_{names[0]}" in rows[0]:
+                    runs.append(np.array([[float(r[f"oracle_{n}"]) for n in names] for r in rows]))
+        if not runs:
+            continue
+        n = min(len(r) for r in runs)
+        arr = np.array([r[:n] for r in runs])  # (runs, episodes, components)
+        for j, name in enumerate(names):
+            smooth = np.array([np.convolve(r[:, j], np.ones(20) / 20, mode="valid") for r in arr])
+            q25, med, q75 = np.percentile(smooth, [25, 50, 75], axis=0)
+            x = np.arange(len(med)) + 20
+            axes[0][j].plot(x, med, label=KINDS[kind][0])
+            axes[0][j].fill_between(x, q25, q75, alpha=0.25)
+            axes[0][j].set_title(f"Lunar Lander: {name}")
+            axes[0][j].set_xlabel("episode")
+    axes[0][0].set_ylabel("oracle return (median, IQR)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(args.results / "reproduce_rl_lunar_lander_components.png", dpi=120)
 
 
 if __name__ == "__main__":

@@ -306,3 +306,18 @@ def test_a_policy_without_agent_json_is_evaluated_on_its_checkpoints_own_served_
     assert served_state_of(run.model, "key", checkpoints["key"], {}) == "h_tanh_c"
     run = train_agent("key", "model", checkpoint=checkpoints["key"], episodes=1, seed=0, progress=False, served="h")
     assert served_state_of(run.model, "key", checkpoints["key"], {}) == "h"
+
+
+def test_lunar_lander_episodes_report_the_oracles_four_reward_components():
+    """The paper's Figure 10 decomposes Lunar Lander returns into pad, no_contact, hover and
+    shaping: every episode's info carries them, and they sum to its oracle return."""
+    env = make_reward_env("lunar_lander", "oracle", seed=4)
+    env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    while True:
+        _, _, terminated, truncated, info = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        if terminated or truncated:
+            break
+    parts = info["oracle_components"]
+    assert set(parts) == {"pad", "no_contact", "hover", "shaping"}
+    assert sum(parts.values()) == pytest.approx(info["oracle_return"], rel=1e-9, abs=1e-9)

@@ -5,7 +5,8 @@
 run, and writes into `out/`:
 
 - `policy.zip`: the SB3 model (load with `DoubleDQN.load` / `SplitLRSAC.load`, or SB3's DQN/SAC);
-- `curve.csv`: one row per episode: episode, oracle_return, learnt_return, steps, wall_time (s);
+- `curve.csv`: one row per episode: episode, oracle_return, learnt_return, steps, wall_time (s),
+  and oracle_<component> per reward component where the oracle has them (Lunar Lander);
 - `curve.png`: the oracle and learnt-reward returns per episode;
 - `agent.json`: task, reward kind, checkpoint, seeds and config (what `evaluate_agent` needs).
 """
@@ -32,6 +33,7 @@ class EpisodeRecord:
     learnt_return: float
     steps: int
     wall_time: float
+    components: dict = field(default_factory=dict)  # the oracle's return per reward component
 
 
 @dataclass
@@ -45,12 +47,13 @@ class LearningCurve:
         return float(np.mean([r.oracle_return for r in self.records[-window:]])) if self.records else float("nan")
 
     def write_csv(self, path: Path) -> None:
+        names = list(next((r.components for r in self.records if r.components), {}))
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(CURVE_FIELDS)
+            w.writerow(list(CURVE_FIELDS) + [f"oracle_{n}" for n in names])
             for r in self.records:
                 w.writerow([r.episode, f"{r.oracle_return:.6g}", f"{r.learnt_return:.6g}", r.steps,
-                            f"{r.wall_time:.3f}"])
+                            f"{r.wall_time:.3f}"] + [f"{r.components.get(n, float('nan')):.6g}" for n in names])
 
     def plot(self, path: Path, title: str) -> None:
         import matplotlib
@@ -113,7 +116,7 @@ class EpisodeCurveCallback(BaseCallback):
                 continue
             rec = EpisodeRecord(len(self.curve.records), float(info.get("oracle_return", np.nan)),
                                 float(info.get("learnt_return", np.nan)), int(self._steps[i]),
-                                time.perf_counter() - self._t0)
+                                time.perf_counter() - self._t0, dict(info.get("oracle_components", {})))
             self.curve.records.append(rec)
             self._steps[i] = 0
             if self.on_episode is not None:

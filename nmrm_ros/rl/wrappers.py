@@ -14,7 +14,9 @@ give the same transitions.
 
 Every wrapper puts the oracle's reward of the transition in `info["oracle_reward"]` (and
 `info["learnt_reward"]`), and at the end of an episode `info["oracle_return"]` and
-`info["learnt_return"]`, so that any run can be judged by the oracle post hoc, as the paper does.
+`info["learnt_return"]`, so that any run can be judged by the oracle post hoc, as the paper does;
+an oracle with reward components (Lunar Lander's pad, no_contact, hover, shaping) adds the
+episode's sum of each in `info["oracle_components"]` (the paper's Figure 10).
 """
 
 from __future__ import annotations
@@ -70,7 +72,8 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
                  hidden_size: int) -> None:
         super().__init__(env)
         self.stepper = stepper
-        self.oracle = (make_oracle(task) if isinstance(task, str) else task).tracker()
+        self.judge = make_oracle(task) if isinstance(task, str) else task
+        self.oracle = self.judge.tracker()
         self.augment = augment and hidden_size > 0
         base = env.observation_space
         if self.augment:
@@ -125,6 +128,10 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
         info = dict(info, learnt_reward=reward, oracle_reward=oracle_reward)
         if terminated or truncated:
             info.update(learnt_return=self._returns[0], oracle_return=self._returns[1])
+            if hasattr(self.judge, "label_components"):  # e.g. Lunar Lander's four reward terms
+                states = np.stack(self._states[:-1])[None]
+                parts = self.judge.label_components(states, np.array([states.shape[1]]))
+                info["oracle_components"] = {k: float(v.sum()) for k, v in parts.items()}
         return obs, reward, terminated, truncated, info
 
 
