@@ -68,30 +68,37 @@ def report(tasks: list, budgets: list) -> str:
     runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
     lines = ["# bench/reward_model_loop.py: final oracle return (mean of the last 50 of 400 training "
              "episodes) / greedy policy on 50 new episodes; median [min, max] over seeds (n)",
+             "# command: .venv/bin/python bench/reward_model_loop.py --tasks " + " ".join(tasks) + " --budgets "
+             + " ".join(map(str, budgets)) + " (loop: 4 rounds of budget / 4 labels; offline: 1 round)",
              f"{'task':8s} {'labels':>6s} {'mode':8s} {'n':>2s} {'final':>26s} {'greedy':>26s} {'rounds':>6s}"]
     fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.4), squeeze=False)
     for i, task in enumerate(tasks):
         ax = axes[0][i]
-        for mode, colour in zip(MODES, ("tab:blue", "tab:grey")):
-            xs, meds, lows, highs = [], [], [], []
+        cells = {}
+        for mode in MODES:
             for b in budgets:
                 cell = [r for r in runs if r["task"] == task and sum(x["labels"] for x in r["rounds"]) == b
                         and (len(r["rounds"]) > 1) == (mode == "loop")]
-                if not cell:
+                if cell:
+                    cells[(mode, b)] = cell
+        for b in budgets:
+            for mode in MODES:
+                if (mode, b) not in cells:
                     continue
+                cell = cells[(mode, b)]
                 final = np.array([r["final_oracle_return"] for r in cell])
                 greedy = np.array([r["greedy_oracle_return"] for r in cell])
                 lines.append(f"{task:8s} {b:6d} {mode:8s} {len(cell):2d} "
                              f"{np.median(final):8.2f} [{final.min():6.2f}, {final.max():6.2f}] "
                              f"{np.median(greedy):8.2f} [{greedy.min():6.2f}, {greedy.max():6.2f}] "
-                             f"{len(cell[0]['rounds']):6d}")
-                xs.append(b)
-                meds.append(np.median(greedy))
-                lows.append(greedy.min())
-                highs.append(greedy.max())
-            if xs:
-                ax.plot(xs, meds, "o-", color=colour, label=f"{mode} (median, range over seeds)")
-                ax.fill_between(xs, lows, highs, color=colour, alpha=0.2)
+                             f"{len(cell[0]['rounds']):6d}  seeds {[r['seed'] for r in cell]}")
+        for mode, colour in zip(MODES, ("tab:blue", "tab:grey")):
+            xs = [b for b in budgets if (mode, b) in cells]
+            if not xs:
+                continue
+            greedy = [np.array([r["greedy_oracle_return"] for r in cells[(mode, b)]]) for b in xs]
+            ax.plot(xs, [np.median(g) for g in greedy], "o-", color=colour, label=f"{mode} (median, range over seeds)")
+            ax.fill_between(xs, [g.min() for g in greedy], [g.max() for g in greedy], color=colour, alpha=0.2)
         ax.set_xscale("log")
         ax.set_xticks(budgets, [str(b) for b in budgets])
         ax.set_xlabel("labels (episodes)")
