@@ -363,6 +363,28 @@ def test_wrong_parameters_get_one_line(ros_domain, node, param, message):
     assert result.stderr.strip().splitlines() == [f"[{node}] error: {message}"]
 
 
+def test_a_labelling_page_that_cannot_be_served_leaves_no_labels_dir(ros_domain, tmp_path):
+    """labeller_web on a port another server holds: a one-line error, and the labels directory it
+    would have created (an empty session bag, the waiting-episodes folder) is not left behind."""
+    import socket
+
+    from graph_helpers import executable
+
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    try:
+        port = taken.getsockname()[1]
+        labels = tmp_path / "labels"
+        result = subprocess.run([executable("labeller_web"), "--ros-args", "-p", f"port:={port}", "-p",
+                                 f"labels_dir:={labels}"], capture_output=True, text=True, timeout=60)
+    finally:
+        taken.close()
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert f"cannot serve on 127.0.0.1:{port}" in result.stderr and "Traceback" not in result.stderr
+    assert not labels.exists(), sorted(labels.rglob("*"))
+
+
 def test_lossless_conversions_and_unknown_names(ros_domain):
     """start_delay:=4 (an integer for a double) and wait_for_nodes:=agent (a string for a string
     array) used to kill env_sim; unknown names were accepted silently."""

@@ -40,6 +40,7 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists() and any(self.path.iterdir()) and not overwrite:
             raise FileExistsError(f"bag directory {self.path} exists and is not empty")
+        self.created_dir = not self.path.exists()  # so a discarded bag leaves no directory behind
         self.path.mkdir(parents=True, exist_ok=True)
         self.file_name = file_name or f"{self.path.name}_0.mcap"
         self._file = open(self.path / self.file_name, "wb")
@@ -150,6 +151,15 @@ class BagWriter:
         self._writer.finish()
         self._file.close()
         write_metadata_yaml(self.path, info)
+
+    def discard(self) -> None:
+        """Close and delete this bag (for one that recorded nothing: leave no debris): its files,
+        and its directory if this writer created it and nothing else is in it."""
+        self.close()
+        for name in (self.file_name, "metadata.yaml"):
+            (self.path / name).unlink(missing_ok=True)
+        if self.created_dir and self.path.is_dir() and not any(self.path.iterdir()):
+            self.path.rmdir()
 
     def __enter__(self) -> "BagWriter":
         return self

@@ -122,4 +122,8 @@ class LabelStore:
         return message
 
     def close(self) -> None:
-        self.bag.close()
+        """Close this session's bag; a session without a label leaves no bag."""
+        if self.written == 0 and self.compared == 0:
+            self.bag.discard()
+        else:
+            self.bag.close()

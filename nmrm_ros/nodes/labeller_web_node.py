@@ -139,6 +139,8 @@ class LabellerWebNode(Node):
         live_parameter(self, PARAMETERS, "checkpoint", lambda value: self._use_checkpoint(str(value)))
         topic = self.resolve_topic_name(TRAJECTORY_RETURN)
         pref_topic = self.resolve_topic_name(TRAJECTORY_PREFERENCE)
+        labels_dir = Path(p["labels_dir"])
+        created_labels_dir = not labels_dir.exists()  # removed again if the page cannot be served
         self.stores = {person: LabelStore(p["labels_dir"], f"person/{person}", topic=topic,
                                           preference_topic=pref_topic) for person in people}
         self.store = self.stores[people[0]]
@@ -165,8 +167,12 @@ class LabellerWebNode(Node):
         try:
             self.server.start()
         except OSError as exc:
-            for store in self.stores.values():
-                store.close()
+            for store in [*self.stores.values(), *([self.gold_store] if self.gold_store else [])]:
+                store.close()  # no label yet: no bag left
+            if created_labels_dir:
+                for empty in (labels_dir / WAITING_DIR, labels_dir):
+                    if empty.is_dir() and not any(empty.iterdir()):
+                        empty.rmdir()
             raise NodeError(f"cannot serve on {p['host']}:{p['port']}: {exc.strerror or exc}") from None
         if allowed_hosts is not None:  # the Host a browser sends for this address and port
             names = LOOPBACK if p["host"] in LOOPBACK else (p["host"],)

@@ -55,7 +55,6 @@ class RecorderNode(Node):
                 resolved[t] = (name, split_topic(name)[1])
             except ValueError as exc:
                 raise NodeError(f"cannot record {t!r}: {exc}") from None
-        self.created_dir = not Path(output).exists()  # so an empty recording can be removed whole
         try:
             self.bag = BagWriter(output, chunk_size=int(p["chunk_size"]))
         except (FileExistsError, OSError) as exc:
@@ -120,14 +119,11 @@ class RecorderNode(Node):
 
     def close(self) -> None:
         if self.bag is not None and not self.bag.closed:
-            self.bag.close()
             if self.messages_received == 0:  # e.g. the rest of a launch failed at start: leave no debris
-                for name in (self.bag.file_name, "metadata.yaml"):
-                    (self.bag.path / name).unlink(missing_ok=True)
-                if self.created_dir and not any(self.bag.path.iterdir()):
-                    self.bag.path.rmdir()
+                self.bag.discard()
                 self.get_logger().info(f"recorded nothing: removed the empty bag {self.bag.path}")
                 return
+            self.bag.close()
             counts = ", ".join(f"{t} {n}" for t, n in self.bag.counts.items())
             self.get_logger().info(f"closed {self.bag.path}: {self.messages_received} messages ({counts}); "
                                    f"{self.write_rate()}")
