@@ -42,6 +42,7 @@ CASES = {
     (("rl", "train"), "--checkpoint"): (IN, "rl train --task key --reward model --checkpoint {P} --episodes 1 --out {T}/a"),
     (("rl", "train"), "--config"): (IN, "rl train --task key --reward oracle --episodes 1 --config {P} --out {T}/a"),
     (("rl", "train"), "--out"): (OUT, "rl train --task key --reward oracle --episodes 1 --out {P}"),
+    (("loop",), "--out"): (OUT, "loop --task key --rounds 1 --labels-per-round 10 --episodes 1 --out {P}"),
     (("rl", "evaluate"), "--policy"): (IN, "rl evaluate --policy {P} --task key"),
     (("rl", "evaluate"), "--checkpoint"): (IN, "rl evaluate --policy {Z} --task key --checkpoint {P}"),
     (("labels", "report"), "--bag"): (IN, "labels report --bag {P}"),

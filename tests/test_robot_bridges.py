@@ -135,6 +135,10 @@ def test_observation_bridge_makes_episodes_from_odometry(ros_domain, tmp_path):
     try:
         odom = capture.node.create_publisher(Odometry, "/odom", qos_profile_sensor_data)
         assert capture.spin_until(lambda: odom.get_subscription_count() >= 1, 30)
+        # the bridge (wait_for_subscribers 0) publishes from the first odometry on: the capture must
+        # have matched its observation publisher first, or it misses episode 0's first steps (seen
+        # once in a full run: steps 0-5 lost)
+        capture.wait_for_publishers({"observation": 1}, timeout=30)
         x = 0.0
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not any(m.terminated for m in capture.msgs["observation"]):
