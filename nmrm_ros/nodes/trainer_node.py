@@ -298,6 +298,7 @@ class TrainerNode(Node):
             if state["answered"] or f.cancelled():
                 return
             state["answered"] = True
+            self.destroy_timer(timer)  # answered: no need to wait (every live timer costs the clock)
             try:
                 result = f.result().results[0]
             except Exception as exc:  # noqa: BLE001 - a service failure is reported, not raised
@@ -320,8 +321,8 @@ class TrainerNode(Node):
                 self.get_logger().warning(f"{node} did not answer {TELL_ATTEMPTS} requests to load "
                                           f"{checkpoint}; it may keep its model")
 
-        future.add_done_callback(done)
         timer = self.create_timer(TELL_TIMEOUT_S, no_answer)
+        future.add_done_callback(done)
 
     def close(self) -> None:
         if self.child is not None and self.child.poll() is None:
