@@ -255,15 +255,12 @@ class Learner:
 
     def new_checkpoint(self, value: str) -> str:
         """The `checkpoint` parameter set while running: relabel with it once it is served."""
-        if value and not self._checkpoint_file(value).is_file():
+        from ..mil.checkpoint import checkpoint_paths
+
+        if value and not checkpoint_paths(value)[0].is_file():
             return f"no checkpoint {value}"
         self.checkpoint = str(value)
         return ""
-
-    @staticmethod
-    def _checkpoint_file(value: str) -> Path:
-        path = Path(value)
-        return path if path.suffix == ".pt" else path.with_name(path.name + ".pt")
 
     def start(self, observation_size: int) -> None:
         import gymnasium as gym
@@ -347,7 +344,9 @@ class Learner:
         wanted = self.checkpoint
         if not wanted or wanted == self.relabelled or self.model is None:
             return
-        name = self._checkpoint_file(wanted).with_suffix("").name
+        from ..mil.checkpoint import checkpoint_paths
+
+        name = checkpoint_paths(wanted)[0].with_suffix("").name
         if name not in {env.source for env in self.envs}:
             return  # the reward model serves it from its next episode start
         from ..mil import CheckpointError, OnlineRewardModel, load_checkpoint
