@@ -131,13 +131,15 @@ def test_observation_bridge_makes_episodes_from_odometry(ros_domain, tmp_path):
 
     (tmp_path / "robot.yaml").write_text(SPEC)
     capture = Capture()
-    bridge = start("observation_bridge", spec=tmp_path / "robot.yaml", task="key", episodes=3)
+    # wait_for_subscribers=1: the bridge's own publisher must have matched the capture before episode 0
+    # starts. Seeing the bridge's publisher from the capture's side (count_publishers) is not enough:
+    # the writer may not yet have matched the reader, and a volatile writer drops what it sends before
+    # (CI lost steps 0-5 of episode 0 that way, twice)
+    bridge = start("observation_bridge", spec=tmp_path / "robot.yaml", task="key", episodes=3,
+                   wait_for_subscribers=1)
     try:
         odom = capture.node.create_publisher(Odometry, "/odom", qos_profile_sensor_data)
         assert capture.spin_until(lambda: odom.get_subscription_count() >= 1, 30)
-        # the bridge (wait_for_subscribers 0) publishes from the first odometry on: the capture must
-        # have matched its observation publisher first, or it misses episode 0's first steps (seen
-        # once in a full run: steps 0-5 lost)
         capture.wait_for_publishers({"observation": 1}, timeout=30)
         x = 0.0
         deadline = time.monotonic() + 60
