@@ -93,26 +93,26 @@ def run(job: tuple) -> dict:
     from nmrm_ros.interpret.lander_probes import rollout_probe, LANDER_PROBES
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+    from nmrm_ros.mil.pipeline import train_and_evaluate
 
     ds = load_dataset("lunar_lander", 5000, 0)
     overrides = dict(VARIANTS[variant])
     cfg = load_train_config("lunar_lander", seed=seed, **overrides)
     t0 = time.perf_counter()
-    result = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,
-                                         offsets=[1000 * j for j in range(cfg.members)])
+    result = train_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,
+                                offsets=[1000 * j for j in range(cfg.members)])
     seconds = time.perf_counter() - t0
     _, _, test = split_indices(len(ds), seed)
     sub = ds.subset(test)
     group, oracle = phase_groups(sub.states, sub.lengths)
-    learnt = learnt_rewards(result.ensemble, sub.states, sub.lengths)
+    learnt = learnt_rewards(result.model, sub.states, sub.lengths)
     probe = next(p for p in LANDER_PROBES if p.name == "correct")
     p_states = rollout_probe(probe)[None]
     p_len = np.array([p_states.shape[1]])
     p_group, p_oracle = phase_groups(p_states, p_len)
-    p_learnt = learnt_rewards(result.ensemble, p_states, p_len)
+    p_learnt = learnt_rewards(result.model, p_states, p_len)
     res = {"variant": variant, "seed": seed, "overrides": overrides, "members": cfg.members,
-           "test": result.ensemble_test, "epochs": result.train.epochs_run,
+           "test": result.test_metrics, "epochs": result.train.epochs_run,
            "best_epochs": result.train.best_epochs, "still_improving": result.train.still_improving,
            "seconds": seconds, "test_placement": placement(group, learnt, oracle),
            "probe_correct": placement(p_group, p_learnt, p_oracle),

@@ -61,7 +61,7 @@ def train_reward_model(job: tuple) -> dict:
     torch.set_num_threads(1)
     from reproduce_tables import load_dataset
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+    from nmrm_ros.mil.pipeline import train_and_evaluate
 
     out = model_path(work, task, arch, seed)
     meta_file = out.with_suffix(".json")
@@ -70,10 +70,10 @@ def train_reward_model(job: tuple) -> dict:
         return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
     ds = load_dataset(task, 5000, seed)
     cfg = load_train_config(task, seed=seed)
-    run = train_ensemble_and_evaluate(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
-                                      data_source=f"screened:{task}:n=5000:seed={seed}",
-                                      offsets=[1000 * j for j in range(cfg.members)])
-    return {"task": task, "arch": arch, "seed": seed, **run.ensemble_test,
+    run = train_and_evaluate(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
+                             data_source=f"screened:{task}:n=5000:seed={seed}",
+                             offsets=[1000 * j for j in range(cfg.members)])
+    return {"task": task, "arch": arch, "seed": seed, **run.test_metrics,
             "seconds": run.train.seconds, "cached": False}
 
 

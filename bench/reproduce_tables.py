@@ -122,7 +122,7 @@ def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
     task, arch, repeats, n, data_seed, overrides, threads, log_every, save, members, member0_from = job
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+    from nmrm_ros.mil.pipeline import train_and_evaluate
 
     ds = load_dataset(task, n, data_seed)
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
@@ -131,11 +131,11 @@ def run_ensemble(job: tuple) -> list:
         return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed,
                                     member0_from)
 
-    run = train_ensemble_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
-                                      split_mode="per_member", progress=False,
-                                      on_epoch=epoch_logger(f"{task} {arch}", log_every),
-                                      offsets=list(repeats),
-                                      out=None if save is None else Path(save) / f"{task}_{arch}")
+    run = train_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
+                             split_mode="per_member", progress=False,
+                             on_epoch=epoch_logger(f"{task} {arch}", log_every),
+                             offsets=list(repeats),
+                             out=None if save is None else Path(save) / f"{task}_{arch}")
     return [{"task": task, "arch": arch, "repeat": r, "data_seed": data_seed, "n": len(ds),
              **table_metrics(task, run.member_test[m]),
              "seconds": run.train.seconds, "epochs": run.train.epochs_run,

@@ -75,7 +75,6 @@ def members(path: Path):
     """(label, model, test dataset) per member of the checkpoint at `path`."""
     from nmrm_ros.mil import load_checkpoint
     from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.ensemble import MILEnsemble
 
     model, meta = load_checkpoint(path)
     source = meta["data"]["source"] or ""
@@ -84,15 +83,12 @@ def members(path: Path):
     ds = load_dataset(meta["task"], n, data_seed)
     if source and not source.startswith("screened"):
         print(f"# note: {path}: data source {source!r}; using the screened dataset n={n}, seed {data_seed}")
-    if isinstance(model, MILEnsemble):
-        ens = meta["ensemble"]
-        for m in range(model.members):
-            split = int(ens["split_seeds"][m])
-            test = split_indices(len(ds), split)[2]
-            yield f"seed {ens['seeds'][m]} split {split}", model.member(m), ds.subset(test)
-    else:
-        test = split_indices(len(ds), int(meta.get("split_seed", 0)))[2]
-        yield f"seed {meta.get('seed')} split {meta.get('split_seed')}", model, ds.subset(test)
+    ens = meta.get("ensemble") or {}
+    split_seeds = ens.get("split_seeds") or [int(meta.get("split_seed", 0))] * model.members
+    seeds = ens.get("seeds") or [meta.get("seed")]
+    for m in range(model.members):
+        test = split_indices(len(ds), int(split_seeds[m]))[2]
+        yield f"seed {seeds[m]} split {split_seeds[m]}", model.member(m), ds.subset(test)
 
 
 def main() -> None:

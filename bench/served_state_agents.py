@@ -48,7 +48,7 @@ def train_model(job: tuple) -> dict:
     torch.set_num_threads(1)
     from nmrm_ros.datasets import generate_screened
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate, train_ensemble_and_evaluate
+    from nmrm_ros.mil.pipeline import train_and_evaluate
 
     out = model_stem(work, task, data_seed)
     if out.with_suffix(".json").is_file():
@@ -56,12 +56,8 @@ def train_model(job: tuple) -> dict:
     ds = generate_screened(task, 5000, seed=data_seed)
     cfg = load_train_config(task, seed=data_seed, **overrides)
     source = f"screened:{task}:n=5000:seed={data_seed}"
-    if cfg.members > 1:
-        run = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=data_seed,
-                                          out=out, progress=False, data_source=source)
-    else:
-        run = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=data_seed, out=out, progress=False,
-                                 data_source=source)
+    train_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=data_seed, out=out, progress=False,
+                       data_source=source)
     return json.loads(out.with_suffix(".json").read_text())["metrics"]
 
 

@@ -548,32 +548,30 @@ def train(
                + (f", {compared} comparisons" if compared else "") + f" ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
-    ensemble = cfg.members if ensemble is None else ensemble
-    if ensemble > 1:
-        _bad_input(_train_ensemble, ds, arch, cfg, ensemble, split_seed, split_mode, out, source)
-        return
-    run = _bad_input(train_and_evaluate, ds, arch, cfg, split_seed=split_seed, out=out, data_source=source)
-    typer.echo(f"best epoch {run.train.best_epoch}/{run.train.epochs_run} in {run.train.seconds:.1f} s; "
-               f"test {_metrics_line(run.test_metrics)}")
-    if run.train.still_improving:
-        typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
-    typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
+    members = cfg.members if ensemble is None else ensemble
+    run = _bad_input(train_and_evaluate, ds, arch, cfg, members, split_seed=split_seed, split_mode=split_mode,
+                     out=out, data_source=source)
+    _print_run(run, cfg)
 
 
-def _train_ensemble(ds, arch, cfg, members, split_seed, split_mode, out, source) -> None:
-    from .mil.pipeline import train_ensemble_and_evaluate
-
-    run = train_ensemble_and_evaluate(ds, arch, cfg, members, split_seed=split_seed,
-                                      split_mode=split_mode, out=out, data_source=source)
-    typer.echo(f"{members} members in one pass: {run.train.epochs_run} epochs in {run.train.seconds:.1f} s")
-    for m, test in enumerate(run.member_test):
-        flag = ", still improving at the limit" if run.train.still_improving[m] else ""
-        typer.echo(f"  member {m} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
-                   f"{run.train.best_epochs[m]}; test {_metrics_line(test)}{flag}")
-    if run.ensemble_test is not None:
-        m = run.ensemble_test
-        typer.echo(f"ensemble mean: test {_metrics_line(m)}, mean return std {m['return_std']:.4f}")
-    typer.echo(f"serving member (hidden state): {int(run.ensemble.serving_member)}")
+def _print_run(run, cfg) -> None:
+    """What `nmrm train` prints of a run: the single model's line, or one per member and the mean."""
+    t = run.train
+    if run.model.members == 1:
+        typer.echo(f"best epoch {t.best_epochs[0]}/{t.epochs_run} in {t.seconds:.1f} s; "
+                   f"test {_metrics_line(run.test_metrics)}")
+        if t.still_improving[0]:
+            typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
+    else:
+        typer.echo(f"{run.model.members} members in one pass: {t.epochs_run} epochs in {t.seconds:.1f} s")
+        for m, test in enumerate(run.member_test):
+            flag = ", still improving at the limit" if t.still_improving[m] else ""
+            typer.echo(f"  member {m} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
+                       f"{t.best_epochs[m]}; test {_metrics_line(test)}{flag}")
+        if run.test_metrics is not None:
+            m = run.test_metrics
+            typer.echo(f"ensemble mean: test {_metrics_line(m)}, mean return std {m['return_std']:.4f}")
+        typer.echo(f"serving member (hidden state): {int(run.model.serving_member)}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
 
 
@@ -620,7 +618,7 @@ def evaluate(
             raise typer.BadParameter(f"--split must be one of {names + ('all',)}")
         ds = ds.subset(split_indices(len(ds), meta.get("split_seed", 0))[names.index(split)])
     m = evaluate_model(model, ds)
-    what = f"{meta['ensemble']['members']}-member ensemble of " if meta.get("ensemble") else ""
+    what = f"{model.members}-member ensemble of " if model.members > 1 else ""
     typer.echo(f"{what}{model.config.architecture} on {ds.task} ({split}): {_metrics_line(m)} "
                f"(of the reward MSE, the mean error per step index: {m['reward_mse_time_profile']:.5f})")
     if meta.get("train_config", {}).get("feedback") == "preferences":

@@ -89,7 +89,7 @@ def run_demo(task: str, live_episodes: int, screened: int, epochs: int, agent_ep
                              data_source="bags:" + ",".join(map(str, sources)))
     m = run.test_metrics
     figures.update(test_return_mse=m["return_mse"], test_reward_mse=m["reward_mse"])
-    echo(f"      best epoch {run.train.best_epoch}, {run.train.seconds:.1f} s; test return MSE "
+    echo(f"      best epoch {run.train.best_epochs[0]}, {run.train.seconds:.1f} s; test return MSE "
          f"{m['return_mse']:.4f} (label variance {ds.returns.var():.3f}), reward MSE "
          f"{m['reward_mse']:.5f}; checkpoint {run.checkpoint}")
 

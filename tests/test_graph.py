@@ -163,11 +163,11 @@ def test_reward_model_serves_an_ensemble(capture, tmp_path):
     (reward_std, return_std) and the serving member's hidden state, as the online ensemble
     computes them."""
     from nmrm_ros.mil import OnlineRewardModel
-    from nmrm_ros.mil.pipeline import train_ensemble_and_evaluate
+    from nmrm_ros.mil.pipeline import train_and_evaluate
 
     ds = generate_screened("key", 200, seed=1)
-    run = train_ensemble_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=1),
-                                      members=3, out=tmp_path / "ens", progress=False)
+    run = train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=1),
+                             members=3, out=tmp_path / "ens", progress=False)
     rm = start("reward_model", mode="model", checkpoint=str(run.checkpoint), task="key")
     pub = capture.publisher(EnvObservation, OBSERVATION)
     capture.handshake(lambda e: pub.publish(EnvObservation(task="key", episode=e, step=0, state=[0.5, 0.5])),

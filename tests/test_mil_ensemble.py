@@ -13,7 +13,7 @@ from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, bui
                           load_checkpoint, load_train_config, model_config, train_model)
 from nmrm_ros.mil.data import split_indices
 from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
-from nmrm_ros.mil.pipeline import member_splits, train_ensemble_and_evaluate
+from nmrm_ros.mil.pipeline import member_splits, train_and_evaluate
 from nmrm_ros.mil.served_state import served_states
 from nmrm_ros.mil.training import train_ensemble
 
@@ -75,15 +75,15 @@ def test_ensemble_training_is_each_member_trained_alone():
 def test_ensemble_checkpoint_and_online_step(tmp_path):
     ds = make_toy_dataset("push_switch", 200, seed=1)
     cfg = load_train_config("push_switch", max_epochs=2)
-    run = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap",
-                                      out=tmp_path / "ens", progress=False)
+    run = train_and_evaluate(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap",
+                             out=tmp_path / "ens", progress=False)
     meta = json.loads((tmp_path / "ens.json").read_text())
     assert meta["ensemble"]["members"] == 4 and meta["ensemble"]["seeds"] == [0, 1, 2, 3]
     serving = meta["ensemble"]["serving_member"]
     assert serving == int(np.argmin([v["return_mse"] for v in run.member_val]))
     loaded, _ = load_checkpoint(tmp_path / "ens", task="push_switch")
     assert isinstance(loaded, MILEnsemble) and loaded.members == 4 and int(loaded.serving_member) == serving
-    for a, b in zip(run.ensemble.state_dict().values(), loaded.state_dict().values()):
+    for a, b in zip(run.model.state_dict().values(), loaded.state_dict().values()):
         assert torch.equal(a, b)
     # online: the members' mean reward, their spread, and the serving member's [h', c']
     states = ds.states[0, : ds.lengths[0]]
@@ -105,8 +105,8 @@ def test_ensemble_checkpoint_and_online_step(tmp_path):
 
 def test_ensemble_checkpoint_with_wrong_member_count_is_refused(tmp_path):
     ds = make_toy_dataset("push_switch", 100, seed=1)
-    train_ensemble_and_evaluate(ds, "instance_lstm", load_train_config("push_switch", max_epochs=1),
-                                members=2, out=tmp_path / "ens", progress=False)
+    train_and_evaluate(ds, "instance_lstm", load_train_config("push_switch", max_epochs=1),
+                       members=2, out=tmp_path / "ens", progress=False)
     meta = json.loads((tmp_path / "ens.json").read_text())
     meta["ensemble"]["members"] = 3
     (tmp_path / "ens.json").write_text(json.dumps(meta))
@@ -155,9 +155,9 @@ def test_member_offsets_rerun_chosen_repeats_exactly():
     masks, result): how bench/reproduce_tables.py --seeds reruns a table's failing repeats."""
     ds = make_toy_dataset("push_switch", 150, seed=2)
     cfg = load_train_config("push_switch", max_epochs=2, dropout=0.1)
-    full = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
-                                       split_seed=4, progress=False)
-    one = train_ensemble_and_evaluate(ds, "csc_lstm", cfg, members=1, split_mode="per_member",
+    full = train_and_evaluate(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
+                              split_seed=4, progress=False)
+    one = train_and_evaluate(ds, "csc_lstm", cfg, members=1, split_mode="per_member",
                                       split_seed=4, progress=False, offsets=[2])
     assert one.seeds == [2] and one.split_seeds == [6]
     assert one.member_test[0]["return_mse"] == pytest.approx(full.member_test[2]["return_mse"], rel=1e-4)

@@ -93,7 +93,9 @@ def test_checkpoint_round_trip_and_refusals(tmp_path):
     loaded, meta = load_checkpoint(path, architecture="csc_lstm", input_size=2, task="key")
     assert meta["task"] == "key" and meta["metrics"] == {"x": 1.0}
     x = torch.rand(2, 10, 2)
-    torch.testing.assert_close(loaded(x, torch.tensor([10, 7])).rewards,
+    # a single model is saved and loaded as an ensemble of one
+    assert loaded.members == 1 and meta["ensemble"]["members"] == 1
+    torch.testing.assert_close(loaded(x, torch.tensor([10, 7])).rewards[0],
                                model(x, torch.tensor([10, 7])).rewards)
     with pytest.raises(CheckpointError, match="csc_lstm model, not the requested instance_lstm"):
         load_checkpoint(path, architecture="instance_lstm")
@@ -121,6 +123,28 @@ def test_checkpoint_round_trip_and_refusals(tmp_path):
     meta_path.write_text(json.dumps(record))
     with pytest.raises(CheckpointError, match="cannot read"):
         load_checkpoint(path)
+
+
+def test_a_single_model_checkpoint_from_before_ensembles_of_one_loads(tmp_path):
+    """Checkpoints written before every model became an ensemble (a MILRewardModel's state dict,
+    no "ensemble" entry) load as an ensemble of one computing the same."""
+    import hashlib
+
+    from nmrm_ros.mil.checkpoint import FORMAT
+
+    model = _model("csc_lstm")
+    weights = tmp_path / "old.pt"
+    torch.save(model.state_dict(), weights)
+    (tmp_path / "old.json").write_text(json.dumps({
+        "format": FORMAT, "task": "key", "model": model.config.to_dict(),
+        "weights_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
+        "normalisation": {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
+                          "return_scale": float(model.return_scale)}}))
+    loaded, meta = load_checkpoint(weights, task="key")
+    assert loaded.members == 1 and "ensemble" not in meta
+    x = torch.rand(3, 9, 2)
+    torch.testing.assert_close(loaded(x, torch.tensor([9, 4, 1])).rewards[0],
+                               model(x, torch.tensor([9, 4, 1])).rewards)
 
 
 def test_unknown_architecture():

@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from ..mil import load_checkpoint
-from ..mil.ensemble import MILEnsemble
 from . import plots
 from .embeddings import hidden_embedding
 from .episode_view import read_episodes
@@ -67,7 +66,7 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
     out.mkdir(parents=True, exist_ok=True)
     name = Path(checkpoint).with_suffix("").name
     arch = model.config.architecture
-    members = model.members if isinstance(model, MILEnsemble) else 1
+    members = model.members
     figures: list = []
     uses_lstm = model.uses_lstm
 

@@ -1,9 +1,9 @@
 """What a model and the oracle compute along given trajectories, step by step.
 
 model_traces(model, states) -> rewards (N, T), hidden (N, T, 2k): the batched forward of a
-`MILRewardModel` or `MILEnsemble` (an ensemble: the members' mean reward, the serving member's
-served state [h'_{t+1}, tanh c'_{t+1}], as the reward_model node publishes them;
-`nmrm_ros.mil.served_state`).
+`MILEnsemble` (or a `MILRewardModel`: an ensemble of one): the members' mean reward and the
+serving member's served state [h'_{t+1}, tanh c'_{t+1}], as the reward_model node publishes them
+(`nmrm_ros.mil.served_state`).
 oracle_traces(task, states) -> rewards (N, T), hidden (N, T, k_oracle): the ground truth.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..mil.ensemble import MILEnsemble
+from ..mil.ensemble import as_ensemble
 from ..mil.served_state import served_states
 from ..oracles import make_oracle
 
@@ -26,11 +26,9 @@ def model_traces(model, states: np.ndarray, lengths: np.ndarray | None = None
     x = torch.as_tensor(states[None] if single else states)
     n, t = x.shape[:2]
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
+    model = as_ensemble(model).eval()
     with torch.no_grad():
-        out = model.eval()(x, lens)
-    rewards = out.rewards.double().numpy()
-    if isinstance(model, MILEnsemble):
-        rewards = rewards.mean(0)
+        rewards = model(x, lens).rewards.double().mean(0).numpy()
     hidden = served_states(model, x.numpy(), lens.numpy())
     return (rewards[0], hidden[0]) if single else (rewards, hidden)
 

@@ -35,12 +35,11 @@ class DisagreementScorer:
 
     def __init__(self, checkpoint: str, task: str) -> None:
         from ..mil import load_checkpoint
-        from ..mil.ensemble import MILEnsemble
 
         model, _ = load_checkpoint(checkpoint, task=task)  # CheckpointError says why it is refused
         self.model = model.eval()
         self.source = str(checkpoint)
-        self.members = model.members if isinstance(model, MILEnsemble) else 1
+        self.members = model.members
         self.return_scale = float(model.return_scale)
         self.lock = threading.Lock()
 

@@ -1,8 +1,9 @@
 """Checkpoints: a plain state dict (`<name>.pt`, loaded with weights_only=True) beside JSON
 metadata (`<name>.json`: architecture and sizes, task, normalisation, training config, seed,
-metrics, package version). An ensemble checkpoint (`nmrm train --ensemble K`) holds all K members'
-stacked weights and says so in its metadata ("ensemble": members, seeds, serving member);
-`load_checkpoint` then returns a `MILEnsemble`. The .json carries the SHA-256 of its .pt, so a
+metrics, package version). A checkpoint holds a `MILEnsemble` (a single model is an ensemble of
+one): the K members' stacked weights, and in its metadata "ensemble": members, seeds, serving
+member. `load_checkpoint` always returns a `MILEnsemble`; a checkpoint of one `MILRewardModel`
+written before that (no "ensemble" entry) loads as an ensemble of one. The .json carries the SHA-256 of its .pt, so a
 .pt and a .json from different trainings are refused; the normalisation lives in the weights (the
 model's buffers) and the .json copy must agree with it. A checkpoint that does not match what the
 caller asks for, or whose weights do not match its own metadata, is refused with a clear error."""
@@ -17,7 +18,7 @@ from pathlib import Path
 import torch
 
 from .. import __version__
-from .ensemble import MILEnsemble
+from .ensemble import MILEnsemble, as_ensemble
 from .models import ModelConfig, MILRewardModel, build_model
 
 FORMAT = "nmrm_ros.mil_checkpoint/1"
@@ -35,7 +36,11 @@ def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
 
 
 def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task: str, **meta) -> Path:
-    """Write `<path>.pt` and `<path>.json`; returns the .pt path."""
+    """Write `<path>.pt` and `<path>.json` of `model` as an ensemble (a single model: of one);
+    returns the .pt path. meta["ensemble"] defaults to the members and the serving member."""
+    model = as_ensemble(model)
+    meta["ensemble"] = {"members": model.members, "serving_member": int(model.serving_member),
+                        **(meta.get("ensemble") or {})}
     weights, info = checkpoint_paths(path)
     weights.parent.mkdir(parents=True, exist_ok=True)
     torch.save(model.state_dict(), weights)
@@ -66,8 +71,9 @@ def _sha256(path: Path) -> str:
 
 def load_checkpoint(path: str | Path, architecture: str | None = None,
                     input_size: int | None = None,
-                    task: str | None = None) -> tuple[MILRewardModel | MILEnsemble, dict]:
-    """Rebuild the model (or ensemble) from the metadata and load the weights (eval mode).
+                    task: str | None = None) -> tuple[MILEnsemble, dict]:
+    """Rebuild the ensemble (a single model's checkpoint: an ensemble of one) from the metadata
+    and load the weights (eval mode).
 
     Raises CheckpointError if a file is missing or malformed, or if the checkpoint's architecture,
     input size or task differs from the one asked for.
@@ -132,4 +138,4 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
         if not same:
             raise CheckpointError(f"{info}: its normalisation differs from the one in the weights "
                                   f"{weights} (the weights hold the one used; was the .json edited?)")
-    return model.eval(), record
+    return as_ensemble(model).eval(), record

@@ -15,6 +15,10 @@ the sum of the members' losses with Adam is K independent trainings done in one 
 
 Normalisation buffers are per member (each member may train on its own split). `serving_member`
 is the member whose hidden state the online model publishes (the best on validation).
+
+A single model is an ensemble of one: training, checkpoints, evaluation and serving all work on a
+`MILEnsemble` (`as_ensemble` turns a `MILRewardModel` into one), so there is one code path
+whatever K is. `MILRewardModel` remains the reference definition of one member.
 """
 
 from __future__ import annotations
@@ -220,6 +224,14 @@ class MILEnsemble(nn.Module):
 def member_steps(lengths: torch.Tensor) -> list:
     """Each member's longest bag in a batch of lengths (K, B) (0s for an empty batch)."""
     return lengths.max(dim=1).values.tolist() if lengths.shape[-1] else [0] * lengths.shape[0]
+
+
+def as_ensemble(model: MILRewardModel | MILEnsemble) -> MILEnsemble:
+    """`model` itself if it is an ensemble, else an ensemble of one holding a copy of its weights
+    and normalisation (the package computes with ensembles only; a single model is K = 1)."""
+    if isinstance(model, MILEnsemble):
+        return model
+    return MILEnsemble.from_members([model]).train(model.training)
 
 
 def init_ensemble(config: ModelConfig, seeds: list) -> MILEnsemble:

@@ -27,17 +27,16 @@ import torch
 
 from ..datasets.trajectories import TrajectoryDataset
 from .data import BagTensors
-from .ensemble import MILEnsemble
+from .ensemble import MILEnsemble, as_ensemble
 from .models import MILRewardModel
 
 
 @torch.no_grad()
 def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512) -> dict:
-    """{"return_mse", "reward_mse", "bags"} of a model. An ensemble is scored on its mean
-    prediction (returns and rewards averaged over the members), and "return_std" adds the mean
-    over bags of the members' return std."""
-    ensemble = isinstance(model, MILEnsemble)
-    model.eval()
+    """{"return_mse", "reward_mse", "bags", ...} of a model or an ensemble, scored on its mean
+    prediction (returns and rewards averaged over the members); with K > 1 members "return_std"
+    adds the mean over bags of the members' return std."""
+    model = as_ensemble(model).eval()
     bags = BagTensors(ds)
     ret_se, rew_se, steps, spread = 0.0, 0.0, 0, 0.0
     predicted, step_pred, step_true, step_index = [], [], [], []
@@ -47,10 +46,8 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
         index = torch.arange(start, min(start + batch_size, len(bags)))
         x, lengths, returns = bags.batch(index)
         out = model(x, lengths)
-        pred_returns, pred_rewards = out.returns, out.rewards
-        if ensemble:
-            spread += float(pred_returns.std(0, unbiased=False).sum())
-            pred_returns, pred_rewards = pred_returns.mean(0), pred_rewards.mean(0)
+        spread += float(out.returns.std(0, unbiased=False).sum())
+        pred_returns, pred_rewards = out.returns.mean(0), out.rewards.mean(0)
         predicted.append(pred_returns.double().numpy())
         ret_se += float(torch.nan_to_num((pred_returns - returns) ** 2).sum())
         mask = torch.arange(x.shape[1])[None, :] < lengths[:, None]
@@ -76,7 +73,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
     flat = [np.concatenate(x) if x else np.zeros(0) for x in (step_pred, step_true, step_index)]
     metrics["reward_correlation"] = correlation(flat[0], flat[1])
     metrics["reward_correlation_centred"] = correlation(*(centred(v, flat[2]) for v in flat[:2]))
-    if ensemble:
+    if model.members > 1:
         metrics["return_std"] = spread / max(len(bags), 1)
     scale = float(model.return_scale)
     if scale != 1.0:

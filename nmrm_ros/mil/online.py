@@ -6,7 +6,7 @@ matrix-vector products (no autograd, no torch dispatch). It computes the same re
 states as the batched `model(x, lengths)` forward on the same trajectory (float64 here, float32
 there; tests/test_mil_models.py checks agreement to 1e-5).
 
-A single model is an ensemble of one. For a K-member `MILEnsemble`, every step runs all members
+A single model is an ensemble of one (`as_ensemble`). For a K-member `MILEnsemble`, every step runs all members
 (weights stacked on a leading member axis): the reward served is the members' mean, `reward_std`
 their spread, `return_std` the spread of their returns so far, and the hidden state is the
 serving member's (the best on validation), so that an agent sees one consistent state.
@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .ensemble import MILEnsemble
+from .ensemble import MILEnsemble, as_ensemble
 from .models import MILRewardModel
 from .served_state import DEFAULT_SERVED_STATE, check_served_state, served_size, served_states
 
@@ -49,8 +49,7 @@ class OnlineRewardModel:
 
     def __init__(self, model: MILRewardModel | MILEnsemble, served: str = DEFAULT_SERVED_STATE) -> None:
         self.served = check_served_state(served)
-        ens = model if isinstance(model, MILEnsemble) else MILEnsemble.from_members([model])
-        ens = ens.eval()
+        ens = as_ensemble(model).eval()
         cfg = ens.config
         self.members = ens.members
         self.serving = int(ens.serving_member)
@@ -164,11 +163,12 @@ class OnlineRewardModel:
         return float(rewards.mean()), self.hidden.copy()
 
 
-def batched_reference(model: MILRewardModel, states: np.ndarray, served: str = DEFAULT_SERVED_STATE
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Rewards (L,) and served states (L, served_size) of one trajectory (L, d) from the batched
-    forward (`served_states`)."""
+def batched_reference(model: MILRewardModel | MILEnsemble, states: np.ndarray,
+                      served: str = DEFAULT_SERVED_STATE) -> tuple[np.ndarray, np.ndarray]:
+    """Rewards (L,) (the members' mean) and served states (L, served_size) (the serving member's)
+    of one trajectory (L, d) from the batched forward (`served_states`)."""
+    model = as_ensemble(model).eval()
     with torch.no_grad():
         x = torch.as_tensor(np.asarray(states, np.float32))[None]
-        out = model.eval()(x, torch.tensor([x.shape[1]]))
-    return out.rewards[0].double().numpy(), served_states(model, x.numpy(), kind=served)[0]
+        out = model(x, torch.tensor([x.shape[1]]))
+    return out.rewards.mean(0)[0].double().numpy(), served_states(model, x.numpy(), kind=served)[0]

@@ -1,5 +1,5 @@
-"""Training runs end to end: split a dataset, train one model or an ensemble, evaluate on the test
-split(s), checkpoint."""
+"""Training runs end to end: split a dataset, train an ensemble of K models (K = 1: one model),
+evaluate on the test split(s), checkpoint."""
 
 from __future__ import annotations
 
@@ -7,59 +7,29 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ..datasets.trajectories import TrajectoryDataset
 from .checkpoint import save_checkpoint
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .models import MILRewardModel, build_model, model_config
-from .training import EnsembleTrainResult, TrainConfig, TrainResult, train_ensemble, train_model
+from .models import model_config
+from .training import EnsembleTrainResult, TrainConfig, train_ensemble
 
 SPLIT_MODES = ("shared", "per_member", "bootstrap")
 
 
 @dataclass
 class RunResult:
-    model: MILRewardModel
-    train: TrainResult
-    test_metrics: dict
-    val_metrics: dict
-    checkpoint: Path | None
+    """One training run: a `members`-member ensemble (1: a single model) and its figures."""
 
-
-def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig,
-                       split_seed: int = 0, out: str | Path | None = None,
-                       progress: bool = True, data_source: str = "") -> RunResult:
-    """Split `ds` 80/10/10 with `split_seed`, train `architecture` with `cfg` (weights seeded by
-    cfg.seed), evaluate on the test split, and save a checkpoint to `out` if given."""
-    train, val, test = split_indices(len(ds), split_seed)
-    torch.manual_seed(cfg.seed)
-    model = build_model(model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
-                                     hidden_size=cfg.hidden_size))
-    result = train_model(model, ds.subset(train), ds.subset(val), cfg, progress=progress)
-    test_metrics = evaluate(model, ds.subset(test))
-    val_metrics = evaluate(model, ds.subset(val))
-    path = None
-    if out is not None:
-        path = save_checkpoint(
-            model, out, task=ds.task, seed=cfg.seed, split_seed=split_seed,
-            train_config=cfg.to_dict(), data={"source": data_source, "n": len(ds),
-                                              "meta": ds.meta},
-            metrics={"test": test_metrics, "val": val_metrics,
-                     "best_epoch": result.best_epoch, "epochs_run": result.epochs_run,
-                     "seconds": result.seconds})
-    return RunResult(model, result, test_metrics, val_metrics, path)
-
-
-@dataclass
-class EnsembleRunResult:
-    ensemble: MILEnsemble
+    model: MILEnsemble
     train: EnsembleTrainResult
     member_test: list  # K dicts of test metrics, each member on its own test split
     member_val: list
-    ensemble_test: dict | None  # the ensemble-mean prediction (shared test split only)
+    test_metrics: dict | None  # the ensemble's (mean) prediction on the test split; None when the
+    # members have test splits of their own (split_mode per_member, K > 1)
+    val_metrics: dict | None
     seeds: list
     split_seeds: list
     checkpoint: Path | None
@@ -89,15 +59,15 @@ def member_splits(n: int, members: int, split_seed: int, mode: str,
     return triples, [split_seed] * members
 
 
-def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig,
-                                members: int, split_seed: int = 0, split_mode: str = "shared",
-                                out: str | Path | None = None, progress: bool = True,
-                                data_source: str = "", on_epoch=None,
-                                offsets: list[int] | None = None) -> EnsembleRunResult:
-    """Train `members` models of `architecture` as one ensemble (member m: weights and shuffle
-    seeded cfg.seed + m, split per `split_mode`; offsets[m] instead of m if given), evaluate each
-    on its test split (and the ensemble mean on a shared one), pick the serving member (best
-    validation return MSE) and save a checkpoint to `out` if given. on_epoch: see `train_ensemble`."""
+def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1,
+                       split_seed: int = 0, split_mode: str = "shared", out: str | Path | None = None,
+                       progress: bool = True, data_source: str = "", on_epoch=None,
+                       offsets: list[int] | None = None) -> RunResult:
+    """Train `members` models of `architecture` as one ensemble (1: a single model; member m:
+    weights and shuffle seeded cfg.seed + m, split 80/10/10 per `split_mode`; offsets[m] instead
+    of m if given), evaluate each member on its test split and the ensemble's mean on a shared
+    one, pick the serving member (best validation criterion) and save a checkpoint to `out` if
+    given. on_epoch: see `train_ensemble`."""
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
@@ -109,9 +79,11 @@ def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: T
     member_val = [evaluate(ens.member(m), ds.subset(va)) for m, (_, va, _) in enumerate(splits)]
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
-    ensemble_test = None
-    if split_mode != "per_member":
-        ensemble_test = evaluate(ens, ds.subset(splits[0][2]))
+    test = val = None
+    if members == 1:
+        test, val = member_test[0], member_val[0]
+    elif split_mode != "per_member":
+        test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, ds.subset(splits[0][1]))
     path = None
     if out is not None:
         path = save_checkpoint(
@@ -120,8 +92,7 @@ def train_ensemble_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: T
             data={"source": data_source, "n": len(ds), "meta": ds.meta},
             ensemble={"members": members, "seeds": seeds, "split_seeds": split_seeds,
                       "split_mode": split_mode, "serving_member": serving},
-            metrics={"test": ensemble_test, "member_test": member_test, "member_val": member_val,
+            metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                      "best_epochs": result.best_epochs, "still_improving": result.still_improving,
                      "epochs_run": result.epochs_run, "seconds": result.seconds})
-    return EnsembleRunResult(ens, result, member_test, member_val, ensemble_test, seeds,
-                             split_seeds, path)
+    return RunResult(ens, result, member_test, member_val, test, val, seeds, split_seeds, path)

@@ -51,8 +51,8 @@ def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILE
         model, _ = load_checkpoint(init, task=task)
     except CheckpointError as exc:
         return None, f"not warm-started: {exc}"
-    if not isinstance(model, MILEnsemble):
-        model = MILEnsemble.from_members([model] * members)
+    if model.members == 1 and members > 1:  # one model starts every member
+        model = MILEnsemble.from_members([model.member(0)] * members)
     same = (model.members == members and model.config.architecture == config.architecture
             and model.config.input_size == config.input_size
             and model.config.hidden_size == config.hidden_size)

@@ -56,13 +56,12 @@ def served_size(hidden_size: int, kind: str = DEFAULT_SERVED_STATE) -> int:
 def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
                   kind: str = DEFAULT_SERVED_STATE) -> np.ndarray:
     """Served states (N, T, served_size) of trajectories `states` (N, T, d) float (zero beyond
-    each length). `model`: a `MILRewardModel` or a `MILEnsemble` (its serving member's state)."""
-    from .ensemble import MILEnsemble
+    each length). `model`: a `MILEnsemble` (its serving member's state) or a `MILRewardModel`."""
+    from .ensemble import as_ensemble
 
     check_served_state(kind)
-    if isinstance(model, MILEnsemble):
-        model = model.member(int(model.serving_member))
-    model = model.eval()
+    ens = as_ensemble(model)
+    model = ens.member(int(ens.serving_member))
     x = torch.as_tensor(np.asarray(states, np.float32))
     n, t = x.shape[:2]
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))

@@ -59,7 +59,7 @@ import yaml
 from ..datasets.label_noise import swap_sources
 from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
-from .ensemble import MILEnsemble
+from .ensemble import MILEnsemble, as_ensemble
 from .models import MILRewardModel
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
@@ -220,19 +220,17 @@ def _config_path() -> Path:
 @torch.no_grad()
 def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size: int = 512,
                scaled: bool = False, index: torch.Tensor | None = None,
-               label_index: torch.Tensor | None = None) -> np.ndarray | float:
-    """Mean squared error of the predicted returns (label units, or / return_scale) over the bags
-    (or the bags at `index`: (n,), or (K, n) one row per ensemble member; against the labels of
-    the bags at `label_index`, same shape, if given). A single model gives a float, an ensemble
-    an array (K,)."""
-    model.eval()
-    ensemble = isinstance(model, MILEnsemble)
+               label_index: torch.Tensor | None = None) -> np.ndarray:
+    """Mean squared error (K,) of each member's predicted returns (label units, or / return_scale)
+    over the bags (or the bags at `index`: (n,), or (K, n) one row per member; against the labels
+    of the bags at `label_index`, same shape, if given)."""
+    model = as_ensemble(model).eval()
     if index is None:
         index = torch.arange(len(bags))
-    if ensemble and index.dim() == 1:
+    if index.dim() == 1:
         index = index.unsqueeze(0).expand(model.members, -1)
     n = index.shape[-1]
-    total = torch.zeros(model.members if ensemble else ())
+    total = torch.zeros(model.members)
     for start in range(0, n, batch_size):
         part = slice(start, start + batch_size)
         x, lengths, returns = bags.batch(index[..., part],
@@ -241,8 +239,7 @@ def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size
         if scaled:
             err = err / model.return_scale
         total += (err.double() ** 2).sum(-1)
-    mse = total.numpy() / max(n, 1)
-    return mse if ensemble else float(mse)
+    return total.numpy() / max(n, 1)
 
 
 def train_model(model: MILRewardModel, train: TrajectoryDataset, val: TrajectoryDataset,
