@@ -88,6 +88,20 @@ def test_key_fourth_class():
     assert np.all(ds.returns[ds.classes == 2] > 0)
 
 
+def test_lunar_lander_screening_tops_up_a_short_pool():
+    """A pool whose classes' limits keep fewer than asked is topped up by further pools (seeded),
+    and a dataset that cannot be filled is a one-line error, not a short dataset."""
+    from nmrm_ros.datasets.screening import screen_lunar_lander
+
+    ds = screen_lunar_lander(pool_size=20, seed=0, n_target=10)
+    assert len(ds) == 10 and ds.meta["pools"] == 2  # one pool of 20 keeps fewer than 10 (class limit 2)
+    _class_limits_respected(ds)
+    again = screen_lunar_lander(pool_size=20, seed=0, n_target=10)
+    np.testing.assert_array_equal(again.states, ds.states)
+    with pytest.raises(ValueError, match=r"only .* episodes kept from 1 pool\(s\)"):
+        screen_lunar_lander(pool_size=5, seed=0, n_target=10, max_pools=1)
+
+
 def test_lunar_lander_pool_screening():
     pool = rollout_lunar_lander(40, seed=0)
     ds = screen_pool("lunar_lander", pool, n_target=20)

@@ -200,10 +200,11 @@ def screen_navigation(task: str, n_target: int = 5000, seed: int = 0, batch: int
 
 
 def screen_pool(task: str, trajectories: list, n_target: int | None = None,
-                meta: dict | None = None) -> TrajectoryDataset:
+                meta: dict | None = None, screener: Screener | None = None) -> TrajectoryDataset:
     """Screen a pool of (states (L + 1, d), actions (L, m), terminated) trajectories, in order.
 
-    `n_target` defaults to the pool size (the class limit is p * n_target)."""
+    `n_target` defaults to the pool size (the class limit is p * n_target). `screener`: one that
+    has already examined earlier pools (to top a dataset up), else a new one."""
     check_task(task)
     n_target = len(trajectories) if n_target is None else n_target
     oracle = make_oracle(task)
@@ -222,7 +223,7 @@ def screen_pool(task: str, trajectories: list, n_target: int | None = None,
         final[i] = s[-1]
     labels = oracle.label(states, lengths=lengths)
     classes = classify(task, states, labels)
-    screener = Screener(screening_spec(task), n_target)
+    screener = screener or Screener(screening_spec(task), n_target)
     keep = screener.offer(classes)
     meta = dict(meta or {}, generator="pool_screening", draws=screener.examined, pool=n)
     return TrajectoryDataset(task, states[keep], lengths[keep], labels.returns[keep],
@@ -231,14 +232,30 @@ def screen_pool(task: str, trajectories: list, n_target: int | None = None,
 
 
 def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | None = None,
-                        policy: str = "scripted") -> TrajectoryDataset:
-    """Roll out a pool of Lunar Lander episodes with `policy` and screen it (limit 0.2)."""
+                        policy: str = "scripted", max_pools: int = 20) -> TrajectoryDataset:
+    """Roll out a pool of Lunar Lander episodes with `policy` and screen it (limit 0.2); while the
+    classes' limits leave the dataset short of `n_target`, roll out and screen another pool
+    (pool k: episode seeds seed + k * pool_size ...), at most `max_pools` in all (ValueError,
+    one line, if still short). A first pool that fills the dataset gives what it always gave."""
     from ..tasks.lunar_lander import rollout_lunar_lander
 
     start = time.perf_counter()
-    pool = rollout_lunar_lander(pool_size, seed=seed, policy=policy)
-    ds = screen_pool("lunar_lander", pool, n_target, {"seed": seed, "policy": policy})
-    ds.meta["seconds"] = time.perf_counter() - start
+    n_target = pool_size if n_target is None else n_target
+    screener = Screener(screening_spec("lunar_lander"), n_target)
+    parts = []
+    for k in range(max_pools):
+        pool = rollout_lunar_lander(pool_size, seed=seed + k * pool_size, policy=policy)
+        part = screen_pool("lunar_lander", pool, n_target, screener=screener)
+        if len(part):
+            parts.append(part)
+        if screener.full:
+            break
+    else:
+        raise ValueError(f"lunar_lander: only {screener.kept}/{n_target} episodes kept from "
+                           f"{max_pools} pool(s) of {pool_size} (the classes' limits are full)")
+    ds = concatenate(parts) if len(parts) > 1 else parts[0]
+    ds.meta = {"seed": seed, "policy": policy, "generator": "pool_screening", "draws": screener.examined,
+               "pool": pool_size, "pools": k + 1, "seconds": time.perf_counter() - start}
     return ds
 
 
