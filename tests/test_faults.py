@@ -289,7 +289,7 @@ def test_edited_normalisation_and_empty_weights_are_refused(two_checkpoints, tmp
     pt, js = checkpoint_paths(two_checkpoints["key"])
     shutil.copy(pt, tmp_path / "k.pt")
     record = json.loads(js.read_text())
-    record["normalisation"]["scale"] = [2.0 * v for v in record["normalisation"]["scale"]]
+    record["normalisation"]["scale"] = (2.0 * np.asarray(record["normalisation"]["scale"])).tolist()
     (tmp_path / "k.json").write_text(json.dumps(record))
     with pytest.raises(CheckpointError, match="normalisation differs"):
         load_checkpoint(tmp_path / "k")

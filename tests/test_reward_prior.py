@@ -31,7 +31,10 @@ def _zero_sum_profile(T: int) -> torch.Tensor:
 
 
 class PlantedRewards:
-    """Not a learnt model: the oracle's rewards plus c * f(t) (+ noise), to check the metric."""
+    """Not a learnt model: the oracle's rewards plus c * f(t) (+ noise), to check the metric; shaped
+    as an ensemble of one (outputs with a leading member axis)."""
+
+    members = 1
 
     def __init__(self, ds, c: float, noise: float = 0.0) -> None:
         self.rewards = torch.as_tensor(ds.rewards, dtype=torch.float64)
@@ -47,7 +50,7 @@ class PlantedRewards:
         r = self.rewards[:, :T] + self.c * _zero_sum_profile(T)
         if self.noise:
             r = r + self.noise * torch.as_tensor(np.random.default_rng(0).standard_normal(r.shape))
-        return MILOutput(r.sum(1).float(), r.float(), x.new_zeros(x.shape[0], T, 0))
+        return MILOutput(r.sum(1).float()[None], r.float()[None], x.new_zeros(1, x.shape[0], T, 0))
 
 
 def test_time_profile_is_the_planted_zero_sum_error(key_bags):

@@ -227,9 +227,10 @@ def member_steps(lengths: torch.Tensor) -> list:
 
 
 def as_ensemble(model: MILRewardModel | MILEnsemble) -> MILEnsemble:
-    """`model` itself if it is an ensemble, else an ensemble of one holding a copy of its weights
-    and normalisation (the package computes with ensembles only; a single model is K = 1)."""
-    if isinstance(model, MILEnsemble):
+    """An ensemble of one holding a copy of a `MILRewardModel`'s weights and normalisation;
+    anything else (a `MILEnsemble`) is returned as it is (the package computes with ensembles
+    only; a single model is K = 1)."""
+    if not isinstance(model, MILRewardModel):
         return model
     return MILEnsemble.from_members([model]).train(model.training)
 
