@@ -210,7 +210,9 @@ def test_cli_train_and_evaluate(tmp_path, checkpoints):
     for name in ("policy.zip", "curve.csv", "curve.png", "agent.json"):
         assert (out / name).stat().st_size > 0
     rows = (out / "curve.csv").read_text().splitlines()
-    assert rows[0] == "episode,oracle_return,learnt_return,steps,wall_time" and len(rows) == 4
+    assert rows[0] == "episode,oracle_return,learnt_return,steps,wall_time,q_max,q_spread" and len(rows) == 4
+    q_spread = [float(r.split(",")[-1]) for r in rows[1:]]  # DQN's Q-values on the states it acted in
+    assert all(np.isfinite(q_spread)) and min(q_spread) >= 0.0
     res = nmrm("evaluate", "--policy", str(out / "policy.zip"), "--task", "key", "--episodes", "3")
     assert res.returncode == 0, res.stderr
     assert "reward model: oracle return over 3 episodes: policy" in res.stdout and "random policy" in res.stdout

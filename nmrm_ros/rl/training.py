@@ -6,7 +6,9 @@ run, and writes into `out/`:
 
 - `policy.zip`: the SB3 model (load with `DoubleDQN.load` / `SplitLRSAC.load`, or SB3's DQN/SAC);
 - `curve.csv`: one row per episode: episode, oracle_return, learnt_return, steps, wall_time (s),
-  and oracle_<component> per reward component where the oracle has them (Lunar Lander);
+  oracle_<component> per reward component where the oracle has them (Lunar Lander), and for a
+  value-based agent (DQN) q_max and q_spread: the episode's mean over steps of max_a Q(s, a) and of
+  max_a Q − min_a Q (a spread near 0 means the network no longer tells actions apart);
 - `curve.png`: the oracle and learnt-reward returns per episode;
 - `agent.json`: task, reward kind, checkpoint, seeds and config (what `evaluate_agent` needs).
 """
@@ -34,6 +36,7 @@ class EpisodeRecord:
     steps: int
     wall_time: float
     components: dict = field(default_factory=dict)  # the oracle's return per reward component
+    q: dict = field(default_factory=dict)  # DQN: {"q_max", "q_spread"} means over the episode's steps
 
 
 @dataclass
@@ -48,12 +51,14 @@ class LearningCurve:
 
     def write_csv(self, path: Path) -> None:
         names = list(next((r.components for r in self.records if r.components), {}))
+        q_names = list(next((r.q for r in self.records if r.q), {}))
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(list(CURVE_FIELDS) + [f"oracle_{n}" for n in names])
+            w.writerow(list(CURVE_FIELDS) + [f"oracle_{n}" for n in names] + q_names)
             for r in self.records:
                 w.writerow([r.episode, f"{r.oracle_return:.6g}", f"{r.learnt_return:.6g}", r.steps,
-                            f"{r.wall_time:.3f}"] + [f"{r.components.get(n, float('nan')):.6g}" for n in names])
+                            f"{r.wall_time:.3f}"] + [f"{r.components.get(n, float('nan')):.6g}" for n in names]
+                           + [f"{r.q.get(n, float('nan')):.6g}" for n in q_names])
 
     def plot(self, path: Path, title: str) -> None:
         import matplotlib
@@ -95,6 +100,7 @@ class EpisodeCurveCallback(BaseCallback):
         self.on_episode = on_episode
         self.between_steps = between_steps
         self._steps: np.ndarray | None = None
+        self._q_sums: np.ndarray | None = None  # per env: summed max Q and summed spread this episode
         self._stop_next = False
         self._t0 = time.perf_counter()
 
@@ -111,12 +117,18 @@ class EpisodeCurveCallback(BaseCallback):
         if self._steps is None:
             self._steps = np.zeros(len(dones), dtype=np.int64)
         self._steps += 1
+        self._add_q_values()
         for i, (done, info) in enumerate(zip(dones, self.locals["infos"])):
             if not done or info.get("after_last_episode"):  # a topic bridge with no episode left
                 continue
+            q = {}
+            if self._q_sums is not None:
+                q = {"q_max": float(self._q_sums[i, 0] / self._steps[i]),
+                     "q_spread": float(self._q_sums[i, 1] / self._steps[i])}
+                self._q_sums[i] = 0.0
             rec = EpisodeRecord(len(self.curve.records), float(info.get("oracle_return", np.nan)),
                                 float(info.get("learnt_return", np.nan)), int(self._steps[i]),
-                                time.perf_counter() - self._t0, dict(info.get("oracle_components", {})))
+                                time.perf_counter() - self._t0, dict(info.get("oracle_components", {})), q)
             self.curve.records.append(rec)
             self._steps[i] = 0
             if self.on_episode is not None:
@@ -124,6 +136,22 @@ class EpisodeCurveCallback(BaseCallback):
         if self.max_episodes is not None and len(self.curve.records) >= self.max_episodes:
             self._stop_next = True
         return True
+
+    def _add_q_values(self) -> None:
+        """A value-based agent (SB3's `q_net`): add max_a Q and max_a Q - min_a Q of the states the
+        agent acted in (the observations before this step; ~30 µs per step)."""
+        q_net = getattr(self.model, "q_net", None)
+        obs = getattr(self.model, "_last_obs", None)
+        if q_net is None or obs is None:
+            return
+        import torch
+
+        with torch.no_grad():
+            q = q_net(torch.as_tensor(np.asarray(obs), dtype=torch.float32)).numpy()
+        if self._q_sums is None:
+            self._q_sums = np.zeros((len(q), 2))
+        self._q_sums[:, 0] += q.max(1)
+        self._q_sums[:, 1] += q.max(1) - q.min(1)
 
 
 @dataclass
