@@ -24,7 +24,10 @@ paper_lr (lr 1e-4 constant, 200 epochs, the paper's App. D.4 settings at our bat
 forget_bias_4 (the LSTM's initial forget-gate bias 4 instead of 1: a memory of ~50 steps at
 initialisation instead of ~4; the return is explained by the steps airborne after 50 steps on the
 pad (R^2 0.93 on data seed 0) and by no Markovian feature (R^2 < 0.01), so the model must count to
-50 before its loss can improve).
+50 before its loss can improve); softplus (the head's output through softplus instead of the paper's
+leaky ReLU of slope 1e-6: the default's stuck runs pay ~0 exactly where the oracle pays most, their
+head's output there pushed to ~-500 before activation, where the leaky ReLU's gradient is 1e-6 —
+the paper's App. F finds negative predictions in the runs stuck on its plateau).
 Run (variant, seed s): weights s + 1000 j, split s, of the screened dataset of data seed 0 (5000
 episodes). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json.
 """
@@ -49,6 +52,7 @@ VARIANTS = {
     "mean_of_3": {"members": 3},
     "paper_lr": {"lr": 1e-4, "max_epochs": 200, "schedule": "constant", "warmup_epochs": 0},
     "forget_bias_4": {"lstm_forget_bias": 4.0},
+    "softplus": {"output_activation": "softplus"},
 }
 GROUPS = ("pad", "landing, off the pad", "hover", "after, elsewhere")
 

@@ -11,6 +11,7 @@ from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, bui
                           load_checkpoint, load_train_config, model_config, save_checkpoint,
                           train_model)
 from nmrm_ros.mil.data import normalisation, split_indices
+from nmrm_ros.mil.models import OUTPUT_ACTIVATIONS
 from nmrm_ros.mil.online import batched_reference
 
 
@@ -150,3 +151,22 @@ def test_a_single_model_checkpoint_from_before_ensembles_of_one_loads(tmp_path):
 def test_unknown_architecture():
     with pytest.raises(ValueError, match="unknown architecture"):
         model_config("transformer", "key", 2)
+
+
+@pytest.mark.parametrize("activation", OUTPUT_ACTIVATIONS)
+def test_output_activations_agree_online_batched_and_ensembled(activation):
+    """Each output activation is computed alike by the model, an ensemble of it and the online
+    stepper; leaky_relu and softplus keep rewards (almost) non-negative."""
+    torch.manual_seed(3)
+    model = build_model(model_config("csc_lstm", "lunar_lander", 8, output_activation=activation)).eval()
+    states = np.random.default_rng(2).normal(size=(40, 8)).astype(np.float32)
+    rewards, _ = batched_reference(model, states)
+    with torch.no_grad():
+        single = model(torch.as_tensor(states)[None], torch.tensor([40])).rewards[0].double().numpy()
+    np.testing.assert_allclose(rewards, single, rtol=1e-5, atol=1e-6)  # the ensemble of one = the model
+    online = OnlineRewardModel(model)
+    np.testing.assert_allclose([online.step(s)[0] for s in states], rewards, rtol=1e-5, atol=1e-6)
+    if activation != "none":
+        assert rewards.min() > -1e-4
+    with pytest.raises(ValueError, match="unknown output activation"):
+        model_config("csc_lstm", "lunar_lander", 8, output_activation="tanh")

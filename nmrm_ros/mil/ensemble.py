@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from .dropout import MemberDropout, dropout_mask, relu_dropout
-from .models import MILOutput, MILRewardModel, ModelConfig, build_model
+from .models import MILOutput, MILRewardModel, ModelConfig, build_model, output_activation
 
 
 def _key(name: str) -> str:
@@ -57,7 +57,6 @@ class MILEnsemble(nn.Module):
         self._fe = [n for n, m in template.feature_extractor.named_children() if isinstance(m, nn.Linear)]
         self._head = [n for n, m in template.head.named_children() if isinstance(m, nn.Linear)]
         self.dropout = float(config.dropout)
-        self.leaky = config.output_activation == "leaky_relu"
         #: per-member dropout masks (`seed_dropout`); None: masks from torch's generator
         self.dropout_masks: MemberDropout | None = None
         self._step_masks = None  # this forward's masks, one per activation in order
@@ -147,10 +146,7 @@ class MILEnsemble(nn.Module):
             z = self._linear(z, "head", name)
             if i < last:
                 z = self._activation(z)
-        z = z.squeeze(-1)
-        if self.leaky:
-            z = torch.nn.functional.leaky_relu(z, 1e-6)
-        return z * self.return_scale
+        return output_activation(self.config.output_activation, z.squeeze(-1)) * self.return_scale
 
     def _lstm(self, f: torch.Tensor) -> torch.Tensor:
         """(K, B, T, F) features -> (K, B, T, k) hidden states h'_{t+1}, one LSTM per member."""

@@ -46,8 +46,9 @@ class ModelConfig:
     """Everything needed to rebuild a model (stored in checkpoint metadata).
 
     fe_sizes: feature extractor layer widths (FC + ReLU + dropout each); head_sizes: head hidden
-    widths (FC + ReLU + dropout each) before the final FC to 1; output_activation: "none" or
-    "leaky_relu" (slope 1e-6, Lunar Lander); hidden_size: LSTM state size (paper: 2).
+    widths (FC + ReLU + dropout each) before the final FC to 1; output_activation: one of
+    OUTPUT_ACTIVATIONS ("leaky_relu": slope 1e-6, the paper's for Lunar Lander); hidden_size: LSTM
+    state size (paper: 2).
     """
 
     architecture: str
@@ -68,6 +69,22 @@ class ModelConfig:
         d = dict(d)
         d["fe_sizes"], d["head_sizes"] = tuple(d["fe_sizes"]), tuple(d["head_sizes"])
         return cls(**d)
+
+
+#: What the head's last FC output goes through: "none"; "leaky_relu" (negative slope 1e-6: the
+#: paper's Lunar Lander models, whose rewards are non-negative); "softplus" (log(1 + e^z):
+#: non-negative too, with a gradient that never vanishes as the leaky ReLU's 1e-6 does; the paper
+#: (App. F) finds the models stuck on its return plateau to be the ones paying negative rewards).
+OUTPUT_ACTIVATIONS = ("none", "leaky_relu", "softplus")
+
+
+def output_activation(name: str, z: torch.Tensor) -> torch.Tensor:
+    """The head's output activation `name` (OUTPUT_ACTIVATIONS) applied to z."""
+    if name == "leaky_relu":
+        return torch.nn.functional.leaky_relu(z, 1e-6)
+    if name == "softplus":
+        return torch.nn.functional.softplus(z)
+    return z
 
 
 #: Layer sizes per task family (paper tables). Toy: FE 2->2, HN 2->1, no dropout.
@@ -130,8 +147,6 @@ class MILRewardModel(nn.Module):
             self.h0 = nn.Parameter(torch.zeros(config.hidden_size))
             self.c0 = nn.Parameter(torch.zeros(config.hidden_size))
         self.head = _mlp([self.head_input_size, *config.head_sizes, 1], config.dropout, True)
-        self.output_activation = (nn.LeakyReLU(1e-6) if config.output_activation == "leaky_relu"
-                                  else nn.Identity())
 
     @property
     def head_input_size(self) -> int:
@@ -152,7 +167,7 @@ class MILRewardModel(nn.Module):
         return self.feature_extractor((x - self.input_shift) / self.input_scale)
 
     def _head(self, z: torch.Tensor) -> torch.Tensor:
-        return self.output_activation(self.head(z)).squeeze(-1) * self.return_scale
+        return output_activation(self.config.output_activation, self.head(z)).squeeze(-1) * self.return_scale
 
     def _lstm(self, f: torch.Tensor) -> torch.Tensor:
         b = f.shape[0]
@@ -233,12 +248,19 @@ def family_of(task: str) -> str:
 
 
 def model_config(architecture: str, task: str, input_size: int, dropout: float = 0.0,
-                 hidden_size: int = 2) -> ModelConfig:
-    """The paper's configuration of `architecture` for `task`'s family."""
+                 hidden_size: int = 2, output_activation: str | None = None) -> ModelConfig:
+    """The paper's configuration of `architecture` for `task`'s family (output_activation: None or
+    "" for the family's)."""
     if architecture not in ARCHITECTURES:
         raise ValueError(f"unknown architecture {architecture!r}; known: {', '.join(ARCHITECTURES)}")
+    sizes = dict(FAMILY_SIZES[family_of(task)])
+    if output_activation:
+        if output_activation not in OUTPUT_ACTIVATIONS:
+            raise ValueError(f"unknown output activation {output_activation!r}; use one of "
+                             f"{', '.join(OUTPUT_ACTIVATIONS)}")
+        sizes["output_activation"] = output_activation
     return ModelConfig(architecture=architecture, input_size=input_size, hidden_size=hidden_size,
-                       dropout=dropout, **FAMILY_SIZES[family_of(task)])
+                       dropout=dropout, **sizes)
 
 
 def build_model(config: ModelConfig) -> MILRewardModel:

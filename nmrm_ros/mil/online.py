@@ -61,7 +61,7 @@ class OnlineRewardModel:
         self.shift = _arrays(ens.input_shift, single)  # (K, d) or (d,)
         self.scale = _arrays(ens.input_scale, single)
         self.return_scale = float(ens.return_scale)
-        self.leaky = cfg.output_activation == "leaky_relu"
+        self.activation = cfg.output_activation
         self.fe = _stacked_linear(ens, "feature_extractor", ens._fe, single)
         self.head = _stacked_linear(ens, "head", ens._head, single)
         self.uses_lstm = ens.uses_lstm
@@ -120,8 +120,10 @@ class OnlineRewardModel:
             if i < last:
                 z = np.maximum(z, 0.0)
         y = z[..., 0]
-        if self.leaky:
+        if self.activation == "leaky_relu":
             y = np.where(y < 0, y * 1e-6, y)
+        elif self.activation == "softplus":
+            y = np.logaddexp(0.0, y)
         return y * self.return_scale
 
     def step(self, state: np.ndarray) -> tuple[float, np.ndarray]:

@@ -71,7 +71,7 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
-                          hidden_size=cfg.hidden_size)
+                          hidden_size=cfg.hidden_size, output_activation=cfg.output_activation)
     ens = init_ensemble(config, seeds)
     result = train_ensemble(ens, ds, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                             progress=progress, on_epoch=on_epoch)

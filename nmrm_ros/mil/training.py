@@ -88,6 +88,7 @@ class TrainConfig:
     lstm_forget_bias: float = 0.0  # initial forget-gate bias (b_ih + b_hh) of every LSTM
     relu_bias: float = 0.0  # > 0: initial bias of every FC layer followed by a ReLU (0: torch's default init)
     hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
+    output_activation: str = ""  # the head's output activation (models.OUTPUT_ACTIVATIONS; "": the task family's)
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
     reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
     members: int = 1  # models `nmrm train` trains as one ensemble (shared split) unless --ensemble is given
