@@ -27,7 +27,9 @@ pad (R^2 0.93 on data seed 0) and by no Markovian feature (R^2 < 0.01), so the m
 50 before its loss can improve); softplus (the head's output through softplus instead of the paper's
 leaky ReLU of slope 1e-6: the default's stuck runs pay ~0 exactly where the oracle pays most, their
 head's output there pushed to ~-500 before activation, where the leaky ReLU's gradient is 1e-6 —
-the paper's App. F finds negative predictions in the runs stuck on its plateau).
+the paper's App. F finds negative predictions in the runs stuck on its plateau); softplus_converge
+(softplus, and the learning rate halved after 10 epochs without improvement instead of the cosine
+to 60 epochs: the stop on convergence of Key and Charger, at most 300 epochs).
 Run (variant, seed s): weights s + 1000 j, split s, of the screened dataset of data seed 0 (5000
 episodes). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json.
 """
@@ -53,6 +55,8 @@ VARIANTS = {
     "paper_lr": {"lr": 1e-4, "max_epochs": 200, "schedule": "constant", "warmup_epochs": 0},
     "forget_bias_4": {"lstm_forget_bias": 4.0},
     "softplus": {"output_activation": "softplus"},
+    "softplus_converge": {"output_activation": "softplus", "schedule": "plateau", "plateau_patience": 10,
+                          "plateau_factor": 0.5, "max_epochs": 300},
 }
 GROUPS = ("pad", "landing, off the pad", "hover", "after, elsewhere")
 
