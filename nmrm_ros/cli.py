@@ -514,6 +514,8 @@ def train(
                                      "validation labels between trajectories (paper Sec. 5.2)"),
     reward_l1: float = typer.Option(None, min=0.0, help="override the weight of the L1 sparsity prior on "
                                     "per-step rewards (config/mil_training.yaml; 0: off)"),
+    output_activation: str = typer.Option(None, help="the head's output activation: none | leaky_relu (the "
+                                          "paper's, slope 1e-6) | softplus; default: the task's config"),
     feedback: str = typer.Option(None, help="what to learn from: returns (the MSE of episode returns) | "
                                  "preferences (a Bradley-Terry loss on pairwise comparisons) | both; default "
                                  "returns"),
@@ -528,7 +530,7 @@ def train(
     if split_mode not in SPLIT_MODES:
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
-                    reward_l1=reward_l1, feedback=feedback)
+                    reward_l1=reward_l1, feedback=feedback, output_activation=output_activation)
     if task:  # the settings are checked before any data is loaded or generated
         _bad_input(load_train_config, task, config, **settings)
     if bag:

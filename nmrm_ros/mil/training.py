@@ -60,7 +60,7 @@ from ..datasets.label_noise import swap_sources
 from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
 from .ensemble import MILEnsemble, as_ensemble
-from .models import MILRewardModel
+from .models import OUTPUT_ACTIVATIONS, MILRewardModel
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
 SCHEDULES = ("constant", "cosine", "plateau")
@@ -132,7 +132,9 @@ class TrainConfig:
                  ("plateau_factor", 0 < self.plateau_factor < 1, "in (0, 1)"),
                  ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h"),
                  ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
-                 ("preference_weight", self.preference_weight > 0, "> 0")]
+                 ("preference_weight", self.preference_weight > 0, "> 0"),
+                 ("output_activation", self.output_activation in ("",) + OUTPUT_ACTIVATIONS,
+                  "empty (the task family's) or " + ", ".join(OUTPUT_ACTIVATIONS))]
         for name, ok, allowed in rules:
             if not ok:
                 raise ValueError(f"training setting {name} must be {allowed}, got {getattr(self, name)!r}")
