@@ -252,7 +252,7 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
             break
     else:
         raise ValueError(f"lunar_lander: only {screener.kept}/{n_target} episodes kept from "
-                           f"{max_pools} pool(s) of {pool_size} (the classes' limits are full)")
+                         f"{max_pools} pool(s) of {pool_size} (the classes' limits are full)")
     ds = concatenate(parts) if len(parts) > 1 else parts[0]
     ds.meta = {"seed": seed, "policy": policy, "generator": "pool_screening", "draws": screener.examined,
                "pool": pool_size, "pools": k + 1, "seconds": time.perf_counter() - start}

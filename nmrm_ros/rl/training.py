@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 
@@ -144,8 +145,6 @@ class EpisodeCurveCallback(BaseCallback):
         obs = getattr(self.model, "_last_obs", None)
         if q_net is None or obs is None:
             return
-        import torch
-
         with torch.no_grad():
             q = q_net(torch.as_tensor(np.asarray(obs), dtype=torch.float32)).numpy()
         if self._q_sums is None:
@@ -180,7 +179,6 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     in place of a plain one; its `max_episodes` is set to `episodes`. overrides:
     settings of config/rl.yaml (e.g. learning_starts).
     """
-    import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
     from stable_baselines3.common.monitor import Monitor
 
