@@ -10,7 +10,9 @@ Run r pairs MIL repeat r with agent seed r, as the paper does. MIL repeat r is t
 model (config/mil_training.yaml: Timer, Moving, Key and Charger the mean of 3 models) trained as
 bench/any_dataset.py's repeat r: on split r of a screened dataset of data seed r (5000 episodes),
 member j with weight seed r + 1000 j; the Markovian Instance Space NN is trained alike. Models are
-cached under --work/models. Agent r is trained with seed r (SB3 seed; episode e of the env is
+cached under --work/models; a cached model whose recorded training settings differ from today's
+config is trained again, and an agent whose model changed since it learnt (agent.json's
+checkpoint_sha256) learns again: the figure is always of today's defaults. Agent r is trained with seed r (SB3 seed; episode e of the env is
 seeded r + e, as env_sim's) and served what the model's config says (served_state). Every agent is
 judged by the oracle (post hoc). Hyperparameters: config/rl.yaml. Medians and interquartile
 ranges over runs are plotted (as the paper's Figure 4), mean ± SEM [worst] tabulated. Episodes: the
@@ -18,8 +20,8 @@ algorithm's config (400 for DQN on the navigation tasks, 800 for SAC on Lunar La
 --episodes. Lunar Lander's curves are also drawn per reward component (pad, no contact, hover,
 shaping; the paper's Figure 10): reproduce_rl_lunar_lander_components.png.
 
-Output (bench/results/): reproduce_rl.png (oracle-return curves, mean +/- SEM over seeds, a
-moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
+Output (bench/results/): reproduce_rl.png (oracle-return curves, median and interquartile range
+over runs of a moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
 episodes, mean +/- SEM and worst seed), and every run's curve.csv + agent.json, copied to
 bench/results/reproduce_rl/agents/ (copy them into --work/agents to continue an incomplete table).
 """
@@ -65,11 +67,15 @@ def train_reward_model(job: tuple) -> dict:
 
     out = model_path(work, task, arch, seed)
     meta_file = out.with_suffix(".json")
+    cfg = load_train_config(task, seed=seed)
     if meta_file.is_file():
         meta = json.loads(meta_file.read_text())
-        return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
+        stale = stale_settings(meta.get("train_config", {}), cfg)
+        if not stale:
+            return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
+        print(f"  {task} {arch} seed {seed}: trained with other settings than today's defaults "
+              f"({', '.join(stale)}): training again", flush=True)
     ds = load_dataset(task, 5000, seed)
-    cfg = load_train_config(task, seed=seed)
     run = train_and_evaluate(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
                              data_source=f"screened:{task}:n=5000:seed={seed}",
                              offsets=[1000 * j for j in range(cfg.members)])
@@ -89,15 +95,38 @@ def train_agent_job(job: tuple) -> dict:
     reward = "model" if arch else kind
     checkpoint = model_path(work, task, arch, seed) if arch else None
     out = work / "agents" / f"{task}_{kind}_seed{seed}"
-    if (out / "curve.csv").is_file():
-        curve = read_curve(out / "curve.csv")
-        if len(curve) == episodes:
-            return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True}
+    if (out / "curve.csv").is_file() and len(read_curve(out / "curve.csv")) == episodes \
+            and learnt_on(out, checkpoint):
+        return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True}
     t0 = time.perf_counter()
     train_agent(task, reward, checkpoint=checkpoint, episodes=episodes, seed=seed, out=out,
                 progress=False)
     return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": False,
             "seconds": time.perf_counter() - t0}
+
+
+def stale_settings(recorded: dict, cfg) -> list[str]:
+    """The training settings in which a cached model's recorded config differs from today's
+    defaults `cfg` (settings added since it was trained are not compared)."""
+    from dataclasses import asdict
+
+    today = asdict(cfg)
+    return [f"{k} {v!r} -> {today[k]!r}" for k, v in recorded.items() if k in today and today[k] != v]
+
+
+def learnt_on(out: Path, checkpoint: Path | None) -> bool:
+    """Whether the finished agent in `out` learnt on the reward model now at `checkpoint` (its
+    agent.json's checkpoint_sha256; agents from before that field: trained after the model was)."""
+    if checkpoint is None:
+        return True
+    model_meta = checkpoint.with_suffix(".json")
+    if not model_meta.is_file():
+        return False
+    recorded = json.loads((out / "agent.json").read_text()).get("checkpoint_sha256") \
+        if (out / "agent.json").is_file() else None
+    if recorded is not None:
+        return recorded == json.loads(model_meta.read_text()).get("weights_sha256")
+    return (out / "curve.csv").stat().st_mtime > model_meta.stat().st_mtime
 
 
 def episodes_of(task: str, episodes: int | None) -> int:

@@ -100,3 +100,24 @@ def test_a_launch_argument_without_a_description_stops_the_build(tmp_path):
     path.write_text("launch:\n- arg: {name: task, default: key}\n")
     with pytest.raises(gen.DocsError, match="launch argument 'task' has no description"):
         gen.launch_args(path)
+
+
+def test_the_head_results_were_trained_with_the_shipped_defaults():
+    """bench/results/any_dataset/head is the table the docs call "at HEAD's defaults": every run's
+    training config must be what config/mil_training.yaml gives its task today (fields added since
+    are not compared). A default changed without its figures, or figures made with a --set that
+    never reached the config, fail here."""
+    import dataclasses
+    import json
+
+    from nmrm_ros.mil import load_train_config
+
+    runs = sorted((ROOT / "bench" / "results" / "any_dataset" / "head").glob("*_r*.json"))
+    assert runs
+    stale = []
+    for path in runs:
+        run = json.loads(path.read_text())
+        shipped = dataclasses.asdict(load_train_config(run["task"], seed=run["config"]["seed"]))
+        stale += [f"{path.name}: {k} {v!r} (shipped: {shipped[k]!r})"
+                  for k, v in run["config"].items() if k in shipped and shipped[k] != v]
+    assert not stale, "\n".join(stale)

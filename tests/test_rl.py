@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import copy
+import json
 import subprocess
 
 import gymnasium as gym
@@ -14,6 +15,7 @@ import torch
 from graph_helpers import executable
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import load_checkpoint, load_train_config
+from nmrm_ros.mil.checkpoint import checkpoint_paths
 from nmrm_ros.mil.online import batched_reference
 from nmrm_ros.mil.pipeline import train_and_evaluate
 from nmrm_ros.oracles import Oracle, make_oracle
@@ -209,6 +211,8 @@ def test_cli_train_and_evaluate(tmp_path, checkpoints):
     assert "3 episodes, 300 steps" in res.stdout
     for name in ("policy.zip", "curve.csv", "curve.png", "agent.json"):
         assert (out / name).stat().st_size > 0
+    model_meta = json.loads(checkpoint_paths(checkpoints["key"])[1].read_text())
+    assert json.loads((out / "agent.json").read_text())["checkpoint_sha256"] == model_meta["weights_sha256"]
     rows = (out / "curve.csv").read_text().splitlines()
     assert rows[0] == "episode,oracle_return,learnt_return,steps,wall_time,q_max,q_spread" and len(rows) == 4
     q_spread = [float(r.split(",")[-1]) for r in rows[1:]]  # DQN's Q-values on the states it acted in
