@@ -44,15 +44,14 @@ def train_repeat(arch: str, ds, held, r: int, cfg) -> tuple:
     """Repeat r: `cfg.members` models of `arch` (weight seeds r + 1000 j) trained in one pass on
     split r of `ds`; (ensemble, train result, seconds, test metrics, held-out metrics), both of the
     members' mean."""
-    from nmrm_ros.mil import evaluate, model_config
+    from nmrm_ros.mil import evaluate
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
     from nmrm_ros.mil.training import train_ensemble
 
     seeds = ens_seeds(r, cfg)
     train, val, test = split_indices(len(ds), r)
-    ens = init_ensemble(model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout,
-                                     hidden_size=cfg.hidden_size), seeds)
+    ens = init_ensemble(cfg.model_config(arch, ds.task, ds.state_size), seeds)
     t0 = time.perf_counter()
     result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
     seconds = time.perf_counter() - t0

@@ -40,7 +40,7 @@ def run(task: str, arch: str, levels: list, repeats: int, max_epochs: int | None
     """Train one (task, architecture) ensemble of every (p, repeat); one row per member."""
     import torch
 
-    from nmrm_ros.mil import evaluate, load_train_config, model_config
+    from nmrm_ros.mil import evaluate, load_train_config
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.ensemble import init_ensemble
     from nmrm_ros.mil.training import train_ensemble
@@ -51,8 +51,7 @@ def run(task: str, arch: str, levels: list, repeats: int, max_epochs: int | None
     members = [(p, r) for p in levels for r in range(repeats)]
     splits = [split_indices(len(ds), r) for _, r in members]
     seeds = [r for _, r in members]
-    ens = init_ensemble(model_config(arch, task, ds.state_size, dropout=cfg.dropout,
-                                     hidden_size=cfg.hidden_size), seeds)
+    ens = init_ensemble(cfg.model_config(arch, task, ds.state_size), seeds)
     start = time.perf_counter()
     result = train_ensemble(ens, ds, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                             progress=False, label_swap=[p for p, _ in members])

@@ -179,7 +179,7 @@ def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save,
     repeats' members train in one pass. With `member0_from` (a one-model `--save` run of the same
     settings) member 0 is loaded from there and only members 1.. are trained. One dict per repeat:
     the ensemble's metrics, and member 0's as `single_*`."""
-    from nmrm_ros.mil import evaluate, model_config
+    from nmrm_ros.mil import evaluate
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
     from nmrm_ros.mil.training import train_ensemble
@@ -189,7 +189,7 @@ def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save,
     layout = [(r, j) for r in repeats for j in range(1 if reused else 0, members)]
     seeds = [r + 1000 * j for r, j in layout]
     splits = {r: split_indices(len(ds), r) for r in repeats}
-    config = model_config(arch, ds.task, ds.state_size, dropout=cfg.dropout, hidden_size=cfg.hidden_size)
+    config = cfg.model_config(arch, ds.task, ds.state_size)
     ens = init_ensemble(config, seeds)
 
     result = train_ensemble(ens, ds, [splits[r][:2] for r, _ in layout], cfg, seeds=seeds,

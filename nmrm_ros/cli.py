@@ -519,6 +519,10 @@ def train(
     feedback: str = typer.Option(None, help="what to learn from: returns (the MSE of episode returns) | "
                                  "preferences (a Bradley-Terry loss on pairwise comparisons) | both; default "
                                  "returns"),
+    fe_sizes: str = typer.Option(None, help="feature-extractor layer widths, e.g. 64,32,32; default: the "
+                                 "task's config, else the paper's for the task's family"),
+    head_sizes: str = typer.Option(None, help="head hidden-layer widths, e.g. 32,16 ('' for none); default: "
+                                   "as --fe-sizes"),
 ) -> None:
     """Train a MIL reward model or an ensemble (early stopping on the validation loss) and
     evaluate it on the test split."""
@@ -530,7 +534,8 @@ def train(
     if split_mode not in SPLIT_MODES:
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
-                    reward_l1=reward_l1, feedback=feedback, output_activation=output_activation)
+                    reward_l1=reward_l1, feedback=feedback, output_activation=output_activation,
+                    fe_sizes=fe_sizes, head_sizes=head_sizes)
     if task:  # the settings are checked before any data is loaded or generated
         _bad_input(load_train_config, task, config, **settings)
     if bag:

@@ -26,6 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
     ("train --task key --n 50 --label-swap 2", "--label-swap"),
     ("train --task key --n 50 --reward-l1 -1", "--reward-l1"),
     ("train --task key --n 50 --output-activation tanh", "output_activation must be empty"),
+    ("train --task key --n 50 --fe-sizes 0,8", "fe_sizes must be one or more layer widths >= 1"),
+    ("train --task key --n 50 --head-sizes x", "head_sizes must be a list of layer widths"),
     ("train --task key --n 5 --out {tmp}/m", "5 trajectories cannot be split"),
     ("train --data /etc/passwd --out {tmp}/m", "is not a dataset .npz"),
     ("train --task key --n 50 --out {tmp}/file/m", "cannot write to"),

@@ -170,3 +170,23 @@ def test_output_activations_agree_online_batched_and_ensembled(activation):
         assert rewards.min() > -1e-4
     with pytest.raises(ValueError, match="unknown output activation"):
         model_config("csc_lstm", "lunar_lander", 8, output_activation="tanh")
+
+
+def test_layer_widths_of_a_training_config_reach_the_model_the_checkpoint_and_the_stepper(tmp_path):
+    """fe_sizes / head_sizes of a training config (config/mil_training.yaml, `nmrm train
+    --fe-sizes/--head-sizes`) replace the family's widths; unset, the family's stand."""
+    from nmrm_ros.mil import load_train_config, save_checkpoint
+
+    cfg = load_train_config("key", fe_sizes="8,4", head_sizes="")
+    config = cfg.model_config("csc_lstm", "key", 4)
+    assert (config.fe_sizes, config.head_sizes) == ((8, 4), ())
+    assert load_train_config("key").model_config("csc_lstm", "key", 4).fe_sizes == (64, 32, 32)
+    torch.manual_seed(0)
+    model = build_model(config).eval()
+    save_checkpoint(model, tmp_path / "m", task="key")
+    loaded, _ = load_checkpoint(tmp_path / "m")
+    assert (loaded.config.fe_sizes, loaded.config.head_sizes) == ((8, 4), ())
+    states = np.random.default_rng(0).normal(size=(30, 4)).astype(np.float32)
+    rewards, _ = batched_reference(loaded, states)
+    online = OnlineRewardModel(loaded)
+    np.testing.assert_allclose([online.step(s)[0] for s in states], rewards, rtol=1e-5, atol=1e-6)

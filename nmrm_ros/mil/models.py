@@ -248,12 +248,17 @@ def family_of(task: str) -> str:
 
 
 def model_config(architecture: str, task: str, input_size: int, dropout: float = 0.0,
-                 hidden_size: int = 2, output_activation: str | None = None) -> ModelConfig:
+                 hidden_size: int = 2, output_activation: str | None = None,
+                 fe_sizes=None, head_sizes=None) -> ModelConfig:
     """The paper's configuration of `architecture` for `task`'s family (output_activation: None or
-    "" for the family's)."""
+    "" for the family's; fe_sizes / head_sizes: layer widths, None for the family's)."""
     if architecture not in ARCHITECTURES:
         raise ValueError(f"unknown architecture {architecture!r}; known: {', '.join(ARCHITECTURES)}")
     sizes = dict(FAMILY_SIZES[family_of(task)])
+    if fe_sizes is not None:
+        sizes["fe_sizes"] = tuple(int(w) for w in fe_sizes)
+    if head_sizes is not None:
+        sizes["head_sizes"] = tuple(int(w) for w in head_sizes)
     if output_activation:
         if output_activation not in OUTPUT_ACTIVATIONS:
             raise ValueError(f"unknown output activation {output_activation!r}; use one of "

@@ -13,7 +13,6 @@ from .checkpoint import save_checkpoint
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .models import model_config
 from .training import EnsembleTrainResult, TrainConfig, train_ensemble
 
 SPLIT_MODES = ("shared", "per_member", "bootstrap")
@@ -70,8 +69,7 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
     given. on_epoch: see `train_ensemble`."""
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
-    config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
-                          hidden_size=cfg.hidden_size, output_activation=cfg.output_activation)
+    config = cfg.model_config(architecture, ds.task, ds.state_size)
     ens = init_ensemble(config, seeds)
     result = train_ensemble(ens, ds, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                             progress=progress, on_epoch=on_epoch)

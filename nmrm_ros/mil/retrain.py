@@ -26,7 +26,6 @@ from ..datasets.trajectories import TrajectoryDataset
 from .checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .models import model_config
 from .training import load_train_config, train_ensemble
 
 
@@ -74,8 +73,7 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     started."""
     t0 = time.perf_counter()
     cfg = load_train_config(ds.task, max_epochs=max_epochs, seed=seed, threads=threads, feedback=feedback)
-    config = model_config(architecture, ds.task, ds.state_size, dropout=cfg.dropout,
-                          hidden_size=cfg.hidden_size, output_activation=cfg.output_activation)
+    config = cfg.model_config(architecture, ds.task, ds.state_size)
     # comparisons: no bootstrap of the episodes (a comparison needs both of its episodes, so a
     # resample would drop about 60% of them); the members differ by their seeds
     if bootstrap is None:

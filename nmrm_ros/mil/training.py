@@ -60,7 +60,7 @@ from ..datasets.label_noise import swap_sources
 from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
 from .ensemble import MILEnsemble, as_ensemble
-from .models import OUTPUT_ACTIVATIONS, MILRewardModel
+from .models import OUTPUT_ACTIVATIONS, MILRewardModel, ModelConfig, model_config
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
 SCHEDULES = ("constant", "cosine", "plateau")
@@ -89,6 +89,8 @@ class TrainConfig:
     relu_bias: float = 0.0  # > 0: initial bias of every FC layer followed by a ReLU (0: torch's default init)
     hidden_size: int = 2  # LSTM state size of the model trained (paper: 2)
     output_activation: str = ""  # the head's output activation (models.OUTPUT_ACTIVATIONS; "": the task family's)
+    fe_sizes: list | None = None  # feature-extractor layer widths, e.g. [64, 32, 32] (None: the task family's)
+    head_sizes: list | None = None  # head hidden-layer widths, e.g. [32, 16]; [] for none (None: the family's)
     label_swap: float = 0.0  # fraction of training and validation labels swapped (label noise)
     reward_l1: float = 0.0  # weight of the mean per-bag sum of |r'_t| (label units / return_scale) in the loss
     members: int = 1  # models `nmrm train` trains as one ensemble (shared split) unless --ensemble is given
@@ -114,6 +116,13 @@ class TrainConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def model_config(self, architecture: str, task: str, input_size: int) -> ModelConfig:
+        """The model this config trains: the paper's `architecture` for `task`'s family with this
+        config's dropout, LSTM size, output activation and (where set) layer widths."""
+        return model_config(architecture, task, input_size, dropout=self.dropout,
+                            hidden_size=self.hidden_size, output_activation=self.output_activation,
+                            fe_sizes=self.fe_sizes, head_sizes=self.head_sizes)
+
     def check(self) -> "TrainConfig":
         """self, or a ValueError naming the first setting out of its range."""
         rules = [("lr", self.lr > 0, "> 0"), ("weight_decay", self.weight_decay >= 0, ">= 0"),
@@ -134,7 +143,11 @@ class TrainConfig:
                  ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
                  ("preference_weight", self.preference_weight > 0, "> 0"),
                  ("output_activation", self.output_activation in ("",) + OUTPUT_ACTIVATIONS,
-                  "empty (the task family's) or " + ", ".join(OUTPUT_ACTIVATIONS))]
+                  "empty (the task family's) or " + ", ".join(OUTPUT_ACTIVATIONS)),
+                 ("fe_sizes", self.fe_sizes is None or (len(self.fe_sizes) >= 1 and _widths(self.fe_sizes)),
+                  "one or more layer widths >= 1 (e.g. 64,32,32)"),
+                 ("head_sizes", self.head_sizes is None or _widths(self.head_sizes),
+                  "layer widths >= 1 (e.g. 32,16; empty for no hidden layer)")]
         for name, ok, allowed in rules:
             if not ok:
                 raise ValueError(f"training setting {name} must be {allowed}, got {getattr(self, name)!r}")
@@ -195,9 +208,23 @@ def load_train_config(task: str, path: str | Path | None = None, **overrides) ->
     return TrainConfig(**{k: _coerce(k, v) for k, v in values.items()}).check()
 
 
+def _widths(sizes) -> bool:
+    return all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in sizes)
+
+
 def _coerce(name: str, value):
-    """A setting converted to its field's type ("1e-3" -> 0.001; 64.0 -> 64), or a clear error."""
+    """A setting converted to its field's type ("1e-3" -> 0.001; 64.0 -> 64; "64,32" -> [64, 32]),
+    or a clear error."""
     kind = TrainConfig.__dataclass_fields__[name].type
+    if kind == "list | None":
+        items = [v for v in value.replace(" ", "").split(",") if v] if isinstance(value, str) else value
+        try:
+            if any(isinstance(v, bool) or float(v) != int(float(v)) for v in items):
+                raise ValueError
+            return [int(float(v)) for v in items]
+        except (TypeError, ValueError):
+            raise ValueError(f"training setting {name} must be a list of layer widths (e.g. 64,32), "
+                             f"got {value!r}") from None
     try:
         if kind == "float":
             return float(value)
