@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from run_cache import stale_settings, weights_sha256
+
 TASKS = ("timer", "moving", "key", "charger")
 ALL_TASKS = TASKS + ("lunar_lander",)
 #: reward kind -> (label, MIL architecture or None)
@@ -105,15 +107,6 @@ def train_agent_job(job: tuple) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
-def stale_settings(recorded: dict, cfg) -> list[str]:
-    """The training settings in which a cached model's recorded config differs from today's
-    defaults `cfg` (settings added since it was trained are not compared)."""
-    from dataclasses import asdict
-
-    today = asdict(cfg)
-    return [f"{k} {v!r} -> {today[k]!r}" for k, v in recorded.items() if k in today and today[k] != v]
-
-
 def learnt_on(out: Path, checkpoint: Path | None) -> bool:
     """Whether the finished agent in `out` learnt on the reward model now at `checkpoint` (its
     agent.json's checkpoint_sha256; agents from before that field: trained after the model was)."""
@@ -125,7 +118,7 @@ def learnt_on(out: Path, checkpoint: Path | None) -> bool:
     recorded = json.loads((out / "agent.json").read_text()).get("checkpoint_sha256") \
         if (out / "agent.json").is_file() else None
     if recorded is not None:
-        return recorded == json.loads(model_meta.read_text()).get("weights_sha256")
+        return recorded == weights_sha256(checkpoint)
     return (out / "curve.csv").stat().st_mtime > model_meta.stat().st_mtime
 
 

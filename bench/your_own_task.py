@@ -19,7 +19,9 @@ agents: double DQN (config/rl.yaml, 400 episodes) on the repeat-0 CSC model's re
 state: the default), on the oracle's reward with its hidden state, and without it; agent seeds as
 given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm rl evaluate`).
 
-Resumes: every run is a JSON file in bench/results/your_own_task/ and is skipped when present.
+Resumes: every run is a JSON file in bench/results/your_own_task/ and is skipped when present,
+unless a model's recorded training settings are not today's defaults or an agent's reward model
+is not the one it learnt on (bench/run_cache.py): then it runs again.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import numpy as np
 
 from any_dataset import ens_seeds, train_repeat
 from reproduce_tables import mean_sem
+from run_cache import stale_settings, weights_sha256
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "your_own_task"
@@ -99,7 +102,8 @@ def run_model(job: tuple) -> dict:
            "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
            "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],
            "held_reward_mse": on_held["reward_mse"], "epochs": result.epochs_run,
-           "best_epochs": result.best_epochs, "seconds": seconds, "checkpoint": str(path)}
+           "best_epochs": result.best_epochs, "seconds": seconds, "checkpoint": str(path),
+           "config": cfg.to_dict()}
     (setting.results / f"model_{arch}_r{r}.json").write_text(json.dumps(res, indent=1))
     return res
 
@@ -118,11 +122,35 @@ def run_agent(job: tuple) -> dict:
                       oracle=setting.oracle)
     seconds = time.perf_counter() - t0
     result = evaluate_agent(out / "policy.zip", setting.task, checkpoint=checkpoint, oracle=setting.oracle)
-    res = {"reward": reward, "seed": seed, "greedy_oracle_return": float(result.returns.mean()),
+    res = {"reward": reward, "seed": seed, "checkpoint_sha256": weights_sha256(checkpoint) if checkpoint else None,
+           "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
            "seconds": seconds, "policy": str(out / "policy.zip")}
     (setting.results / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
     return res
+
+
+def model_done(setting: Setting, arch: str, r: int) -> bool:
+    """Repeat r of `arch` is finished with today's training settings (else it is run again)."""
+    from nmrm_ros.mil import load_train_config
+
+    path = setting.results / f"model_{arch}_r{r}.json"
+    if not path.is_file():
+        return False
+    stale = stale_settings(json.loads(path.read_text()).get("config"), load_train_config(setting.task, seed=r))
+    if stale:
+        print(f"# {path.name}: not today's training settings ({'; '.join(stale)}): run again", flush=True)
+    return not stale
+
+
+def agent_done(setting: Setting, reward: str, seed: int) -> bool:
+    """The agent of (reward, seed) is finished, and (reward model) learnt on today's repeat-0 model."""
+    path = setting.results / f"agent_{reward}_s{seed}.json"
+    if not path.is_file():
+        return False
+    if reward != "model":
+        return True
+    return json.loads(path.read_text()).get("checkpoint_sha256") == weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
 
 
 def report(setting: Setting) -> str:
@@ -173,14 +201,12 @@ def main() -> None:
     results.mkdir(parents=True, exist_ok=True)
     if args.what == "models":
         dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
-        jobs = [(setting, a, r) for r in range(args.repeats) for a in ARCHS
-                if not (results / f"model_{a}_r{r}.json").is_file()]
+        jobs = [(setting, a, r) for r in range(args.repeats) for a in ARCHS if not model_done(setting, a, r)]
         fn = run_model
     elif args.what == "agents":
         if not (results / "model_csc_lstm_r0.json").is_file():
             raise SystemExit("train the models first (at least repeat 0): bench/your_own_task.py models")
-        jobs = [(setting, w, s) for s in args.seeds for w in args.rewards
-                if not (results / f"agent_{w}_s{s}.json").is_file()]
+        jobs = [(setting, w, s) for s in args.seeds for w in args.rewards if not agent_done(setting, w, s)]
         fn = run_agent
     else:
         jobs, fn = [], None
