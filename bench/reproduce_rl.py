@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from run_cache import stale_settings, weights_sha256
+from nmrm_ros.mil.checkpoint import recorded_weights_sha256
+from run_cache import stale_settings
 
 TASKS = ("timer", "moving", "key", "charger")
 ALL_TASKS = TASKS + ("lunar_lander",)
@@ -118,7 +119,7 @@ def learnt_on(out: Path, checkpoint: Path | None) -> bool:
     recorded = json.loads((out / "agent.json").read_text()).get("checkpoint_sha256") \
         if (out / "agent.json").is_file() else None
     if recorded is not None:
-        return recorded == weights_sha256(checkpoint)
+        return recorded == recorded_weights_sha256(checkpoint)
     return (out / "curve.csv").stat().st_mtime > model_meta.stat().st_mtime
 
 

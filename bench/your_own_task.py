@@ -39,7 +39,8 @@ import numpy as np
 
 from any_dataset import ens_seeds, train_repeat
 from reproduce_tables import mean_sem
-from run_cache import stale_settings, weights_sha256
+from nmrm_ros.mil.checkpoint import recorded_weights_sha256
+from run_cache import stale_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "your_own_task"
@@ -122,7 +123,7 @@ def run_agent(job: tuple) -> dict:
                       oracle=setting.oracle)
     seconds = time.perf_counter() - t0
     result = evaluate_agent(out / "policy.zip", setting.task, checkpoint=checkpoint, oracle=setting.oracle)
-    res = {"reward": reward, "seed": seed, "checkpoint_sha256": weights_sha256(checkpoint) if checkpoint else None,
+    res = {"reward": reward, "seed": seed, "checkpoint_sha256": recorded_weights_sha256(checkpoint) if checkpoint else None,
            "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
            "seconds": seconds, "policy": str(out / "policy.zip")}
@@ -150,7 +151,7 @@ def agent_done(setting: Setting, reward: str, seed: int) -> bool:
         return False
     if reward != "model":
         return True
-    return json.loads(path.read_text()).get("checkpoint_sha256") == weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
+    return json.loads(path.read_text()).get("checkpoint_sha256") == recorded_weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
 
 
 def report(setting: Setting) -> str:

@@ -35,6 +35,16 @@ def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
     return stem.with_suffix(".pt"), stem.with_suffix(".json")
 
 
+def recorded_weights_sha256(path: str | Path) -> str | None:
+    """The SHA-256 of the weights that a checkpoint's metadata records (None without metadata):
+    which model a run used, even after a checkpoint of the same name is trained again."""
+    info = checkpoint_paths(path)[1]
+    try:
+        return json.loads(info.read_text()).get("weights_sha256")
+    except (OSError, ValueError):
+        return None
+
+
 def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task: str, **meta) -> Path:
     """Write `<path>.pt` and `<path>.json` of `model` as an ensemble (a single model: of one);
     returns the .pt path. meta["ensemble"] defaults to the members and the serving member."""

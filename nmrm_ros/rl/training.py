@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from ..mil.checkpoint import recorded_weights_sha256
+
 
 CURVE_FIELDS = ("episode", "oracle_return", "learnt_return", "steps", "wall_time")
 
@@ -214,22 +216,11 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
         save_agent(model, callback.curve, out_dir, {
             "task": task, "reward": reward, "algorithm": algo,
             "checkpoint": str(checkpoint) if checkpoint is not None else None,
-            "checkpoint_sha256": _weights_sha256(checkpoint) if reward == "model" else None,
+            "checkpoint_sha256": recorded_weights_sha256(checkpoint) if reward == "model" else None,
             "served_state": served if reward == "model" else None, "oracle": oracle, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
             "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
             "config": cfg})
     return AgentRun(model, callback.curve, seconds, out_dir)
-
-
-def _weights_sha256(checkpoint: str | Path) -> str | None:
-    """The SHA-256 of the reward model's weights, as its checkpoint metadata records it: which
-    model an agent learnt on, even after a checkpoint of the same name is retrained."""
-    from ..mil.checkpoint import checkpoint_paths
-
-    try:
-        return json.loads(checkpoint_paths(checkpoint)[1].read_text()).get("weights_sha256")
-    except (OSError, ValueError):
-        return None
 
 
 def save_agent(model, curve: LearningCurve, out: Path, meta: dict) -> None:
