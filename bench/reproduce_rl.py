@@ -99,13 +99,25 @@ def train_agent_job(job: tuple) -> dict:
     checkpoint = model_path(work, task, arch, seed) if arch else None
     out = work / "agents" / f"{task}_{kind}_seed{seed}"
     if (out / "curve.csv").is_file() and len(read_curve(out / "curve.csv")) == episodes \
-            and learnt_on(out, checkpoint):
+            and learnt_on(out, checkpoint) and not stale_agent(out, task, episodes):
         return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True}
     t0 = time.perf_counter()
     train_agent(task, reward, checkpoint=checkpoint, episodes=episodes, seed=seed, out=out,
                 progress=False)
     return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": False,
             "seconds": time.perf_counter() - t0}
+
+
+def stale_agent(out: Path, task: str, episodes: int) -> list[str]:
+    """How the finished agent in `out` was trained with other RL settings than today's (config/rl.yaml
+    for `task`; empty: it stands)."""
+    from nmrm_ros.rl import algorithm_name, load_rl_config
+
+    recorded = json.loads((out / "agent.json").read_text()).get("config") if (out / "agent.json").is_file() else None
+    stale = stale_settings(recorded, load_rl_config(algorithm_name(task), task=task, episodes=episodes))
+    if stale:
+        print(f"# {out.name}: not today's RL settings ({'; '.join(stale)}): training again", flush=True)
+    return stale
 
 
 def learnt_on(out: Path, checkpoint: Path | None) -> bool:
@@ -127,7 +139,7 @@ def episodes_of(task: str, episodes: int | None) -> int:
     """`episodes`, else the task's algorithm's config (config/rl.yaml)."""
     from nmrm_ros.rl import algorithm_name, load_rl_config
 
-    return int(episodes or load_rl_config(algorithm_name(task))["episodes"])
+    return int(episodes or load_rl_config(algorithm_name(task), task=task)["episodes"])
 
 
 def read_curve(path: Path) -> list:

@@ -1,7 +1,7 @@
 """When a benchmark's finished run still stands for today's code and defaults.
 
 Benchmarks resume: a run whose result file exists is skipped. That is only right while the run
-was made with today's training settings (checked here) and, for an agent, while its reward model
+was made with today's training (or RL) settings (checked here) and, for an agent, while its reward model
 is the one it learnt on (its recorded `checkpoint_sha256` against the checkpoint's
 `nmrm_ros.mil.checkpoint.recorded_weights_sha256`); otherwise the run is made again.
 """
@@ -12,10 +12,10 @@ from dataclasses import asdict
 
 
 def stale_settings(recorded: dict | None, cfg) -> list[str]:
-    """The training settings in which a finished run's recorded config differs from `cfg` (a
-    TrainConfig of today's defaults), as "name old -> new"; settings added since the run are not
-    compared. A run that recorded no config is stale as a whole."""
+    """The settings in which a finished run's recorded config differs from `cfg` (today's defaults:
+    a TrainConfig, or an RL config dict), as "name old -> new"; settings added since the run are
+    not compared. A run that recorded no config is stale as a whole."""
     if not recorded:
-        return ["no recorded training config"]
-    today = asdict(cfg)
+        return ["no recorded config"]
+    today = dict(cfg) if isinstance(cfg, dict) else asdict(cfg)
     return [f"{k} {v!r} -> {today[k]!r}" for k, v in recorded.items() if k in today and today[k] != v]

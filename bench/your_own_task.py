@@ -6,6 +6,8 @@
     # any task and oracle, results in bench/results/your_own_task/NAME/ (e.g. the fake robot's delivery):
     .venv/bin/python bench/your_own_task.py models --name delivery --repeats 3 \
         --task "nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1" --oracle nmrm_ros.robots.delivery:oracle
+    # agents with other RL settings than config/rl.yaml's, beside the default ones (results in agents_<settings>/):
+    .venv/bin/python bench/your_own_task.py agents --rl-set learning_rate=1e-3 gamma=0.99 ...
 
 Default task `gym:CartPole-v1,max_episode_steps=200`; oracle examples/cartpole_crossings.py:oracle (a
 step pays 1 once the cart has crossed the centre line in both directions); --task/--oracle/--name
@@ -15,7 +17,7 @@ return bins from random-policy pools (nmrm_ros.datasets.return_screening); episo
 models: repeat r trains the CSC LSTM and the Markovian Instance Space NN (config your_own_task:
 the mean of 3 models, member j weight seed r + 1000 j) on split r of a dataset of data seed r
 (N episodes), scored on its test split and on a held-out dataset of data seed 999.
-agents: double DQN (config/rl.yaml, 400 episodes) on the repeat-0 CSC model's reward (served
+agents: double DQN (config/rl.yaml, 400 episodes; --rl-set changes settings) on the repeat-0 CSC model's reward (served
 state: the default), on the oracle's reward with its hidden state, and without it; agent seeds as
 given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm rl evaluate`).
 
@@ -55,6 +57,16 @@ class Setting:
     task: str = TASK
     oracle: str = ORACLE
     name: str = ""  # results in RESULTS/NAME/, data in DATA/NAME/ ("": the CartPole example's own)
+    rl_set: tuple = ()  # agents: (setting, value) pairs changing config/rl.yaml's
+
+    @property
+    def rl_tag(self) -> str:
+        return ",".join(f"{k}={v}" for k, v in self.rl_set)
+
+    @property
+    def agent_results(self) -> Path:
+        """Where the agents' JSON files go: the results directory, or agents_<settings>/ in it."""
+        return self.results / f"agents_{self.rl_tag}" if self.rl_set else self.results
 
     @property
     def results(self) -> Path:
@@ -117,17 +129,18 @@ def run_agent(job: tuple) -> dict:
     from nmrm_ros.rl import evaluate_agent, train_agent
 
     checkpoint = checkpoint_path(setting, "csc_lstm", 0) if reward == "model" else None
-    out = setting.data / "agents" / f"{reward}_s{seed}"
+    out = setting.data / "agents" / (setting.rl_tag or ".") / f"{reward}_s{seed}"
     t0 = time.perf_counter()
     run = train_agent(setting.task, reward, checkpoint=checkpoint, seed=seed, out=out, progress=False,
-                      oracle=setting.oracle)
+                      oracle=setting.oracle, **dict(setting.rl_set))
     seconds = time.perf_counter() - t0
     result = evaluate_agent(out / "policy.zip", setting.task, checkpoint=checkpoint, oracle=setting.oracle)
     res = {"reward": reward, "seed": seed, "checkpoint_sha256": recorded_weights_sha256(checkpoint) if checkpoint else None,
            "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
-           "seconds": seconds, "policy": str(out / "policy.zip")}
-    (setting.results / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
+           "seconds": seconds, "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"]}
+    setting.agent_results.mkdir(parents=True, exist_ok=True)
+    (setting.agent_results / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
     return res
 
 
@@ -145,13 +158,22 @@ def model_done(setting: Setting, arch: str, r: int) -> bool:
 
 
 def agent_done(setting: Setting, reward: str, seed: int) -> bool:
-    """The agent of (reward, seed) is finished, and (reward model) learnt on today's repeat-0 model."""
-    path = setting.results / f"agent_{reward}_s{seed}.json"
+    """The agent of (reward, seed) is finished with today's RL settings, and (reward model) learnt on
+    today's repeat-0 model."""
+    from nmrm_ros.rl import algorithm_name, load_rl_config
+
+    path = setting.agent_results / f"agent_{reward}_s{seed}.json"
     if not path.is_file():
+        return False
+    res = json.loads(path.read_text())
+    today = load_rl_config(algorithm_name(setting.task), task=setting.task, **dict(setting.rl_set))
+    stale = stale_settings(res.get("rl_config"), today)
+    if stale:
+        print(f"# {path.name}: not today's RL settings ({'; '.join(stale)}): run again", flush=True)
         return False
     if reward != "model":
         return True
-    return json.loads(path.read_text()).get("checkpoint_sha256") == recorded_weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
+    return res.get("checkpoint_sha256") == recorded_weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
 
 
 def report(setting: Setting) -> str:
@@ -172,15 +194,43 @@ def report(setting: Setting) -> str:
             cells.append(f"{m:9.4f} ± {s:7.4f} [{max(v):8.4f}]")
         lines.append(f"{arch:12s} {len(runs):2d} {' '.join(cells)} {np.mean([r['seconds'] for r in runs]):6.0f}")
     lines.append("# agents: greedy oracle return over 50 episodes (seeds 10^8..); mean [worst] over agent seeds")
-    for reward in REWARDS:
-        runs = [json.loads(p.read_text()) for p in sorted(setting.results.glob(f"agent_{reward}_s*.json"))]
-        if not runs:
-            continue
-        v = [r["greedy_oracle_return"] for r in runs]
-        lines.append(f"{reward:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
-                     f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
-                     f"{np.mean([r['seconds'] for r in runs]):.0f} s/run)")
+    for where in [setting.results] + sorted(setting.results.glob("agents_*")):
+        if where != setting.results:
+            lines.append(f"# agents with config/rl.yaml's settings changed: {where.name[len('agents_'):]}")
+        for reward in REWARDS:
+            runs = [json.loads(p.read_text()) for p in sorted(where.glob(f"agent_{reward}_s*.json"))]
+            if not runs:
+                continue
+            v = [r["greedy_oracle_return"] for r in runs]
+            lines.append(f"{reward:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
+                         f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
+                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run)")
     return "\n".join(lines)
+
+
+def rl_settings(items: list[str]) -> tuple:
+    """--rl-set's "name=value" items as sorted (name, value) pairs, values as YAML reads them; a
+    setting config/rl.yaml does not have is an error."""
+    import yaml
+
+    from nmrm_ros.rl import load_rl_config
+
+    pairs = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise SystemExit(f"--rl-set takes SETTING=VALUE, got {item!r}")
+        value = yaml.safe_load(value)
+        try:
+            value = float(value) if isinstance(value, str) else value  # YAML reads 1e-3 as a string
+        except ValueError:
+            pass
+        pairs[name] = value
+    try:
+        load_rl_config("dqn", **pairs)
+    except ValueError as exc:
+        raise SystemExit(f"--rl-set: {exc}") from None
+    return tuple(sorted(pairs.items()))
 
 
 def main() -> None:
@@ -194,10 +244,12 @@ def main() -> None:
     parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
     parser.add_argument("--oracle", default=ORACLE, help="oracle <module>:<function> or <file.py>:<function>")
     parser.add_argument("--name", default="", help="results in bench/results/your_own_task/NAME/ (needed with --task)")
+    parser.add_argument("--rl-set", nargs="*", default=[], metavar="SETTING=VALUE",
+                        help="agents: change config/rl.yaml's settings (e.g. learning_rate=1e-3); results in agents_<settings>/")
     args = parser.parse_args()
     if (args.task, args.oracle) != (TASK, ORACLE) and not args.name:
         raise SystemExit("give --name for another task or oracle (its results go to bench/results/your_own_task/NAME/)")
-    setting = Setting(args.task, args.oracle, args.name)
+    setting = Setting(args.task, args.oracle, args.name, rl_settings(args.rl_set))
     results = setting.results
     results.mkdir(parents=True, exist_ok=True)
     if args.what == "models":

@@ -212,7 +212,7 @@ class Learner:
         if int(p["learning_starts"]) >= 0:
             overrides["learning_starts"] = int(p["learning_starts"])
         try:
-            self.cfg = load_rl_config(self.algo, p["rl_config"] or None, **overrides)
+            self.cfg = load_rl_config(self.algo, p["rl_config"] or None, task=self.task, **overrides)
         except (OSError, ValueError) as exc:
             raise NodeError(f"RL config: {exc}") from None
         self.episodes = int(self.cfg["episodes"])

@@ -30,17 +30,33 @@ def algorithm_name(task: str, continuous: bool = False) -> str:
     return "dqn" if info.discrete and not continuous else "sac"
 
 
-def load_rl_config(algo: str, path: str | Path | None = None, **overrides) -> dict:
-    """The `algo` section ("dqn" | "sac") of the RL config, with non-None overrides applied."""
-    with open(path or config_path()) as f:
+#: the RL config's entry of changes for a task spec (your own task: "gym:<id>", "module:attr")
+OWN_TASK = "your_own_task"
+
+
+def load_rl_config(algo: str, path: str | Path | None = None, task: str | None = None, **overrides) -> dict:
+    """The `algo` section ("dqn" | "sac") of the RL config; for a task spec (`task` with a colon:
+    your own task) then its `your_own_task` entry's changes to that section; then the non-None
+    `overrides`."""
+    from ..tasks.gym_task import is_task_spec
+
+    source = path or config_path()
+    with open(source) as f:
         table = yaml.safe_load(f)
-    if algo not in table:
-        raise ValueError(f"no RL config for {algo!r} in {path or config_path()}")
+    if not isinstance(table, dict) or not isinstance(table.get(algo), dict):
+        raise ValueError(f"no RL config for {algo!r} in {source}")
     cfg = dict(table[algo])
-    unknown = set(overrides) - set(cfg)
+    changes = dict(overrides)
+    if task is not None and is_task_spec(task):
+        own = table.get(OWN_TASK) or {}
+        own = (own.get(algo) or {}) if isinstance(own, dict) else own
+        if not isinstance(own, dict):
+            raise ValueError(f"{OWN_TASK}.{algo} in {source} must be a table of settings")
+        changes = {**own, **{k: v for k, v in overrides.items() if v is not None}}
+    unknown = set(changes) - set(cfg)
     if unknown:
         raise ValueError(f"unknown RL settings {sorted(unknown)}")
-    cfg.update({k: v for k, v in overrides.items() if v is not None})
+    cfg.update({k: v for k, v in changes.items() if v is not None})
     return cfg
 
 

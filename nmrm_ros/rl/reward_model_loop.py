@@ -182,7 +182,7 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     t0 = time.perf_counter()
     cfg = load_train_config(task)
     members = members or cfg.members
-    episodes = int(load_rl_config(algorithm_name(task), episodes=episodes)["episodes"])
+    episodes = int(load_rl_config(algorithm_name(task), task=task, episodes=episodes)["episodes"])
     check_loop_arguments(rounds, labels_per_round, episodes)
     judge = make_oracle(task, oracle)
     result = LoopResult(task, out=str(out))

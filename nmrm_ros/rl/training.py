@@ -191,7 +191,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
 
     info = task_info(task)
     algo = algorithm_name(task)
-    cfg = load_rl_config(algo, config, episodes=episodes, **overrides)
+    cfg = load_rl_config(algo, config, task=task, episodes=episodes, **overrides)
     torch.set_num_threads(int(cfg.get("threads", 1)))
     episodes = int(cfg["episodes"])
     env_seed = seed if env_seed is None else int(env_seed)
