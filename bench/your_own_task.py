@@ -176,6 +176,21 @@ def agent_done(setting: Setting, reward: str, seed: int) -> bool:
     return res.get("checkpoint_sha256") == recorded_weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
 
 
+def late_dip(curve: Path) -> float:
+    """The lowest mean oracle return of 50 consecutive training episodes in the run's second half
+    (curve.csv; NaN when it is gone)."""
+    import csv
+
+    if not curve.is_file():
+        return float("nan")
+    with open(curve) as f:
+        o = np.array([float(r["oracle_return"]) for r in csv.DictReader(f)])
+    half = o[len(o) // 2:]
+    if len(half) < 50:
+        return float(half.mean()) if len(half) else float("nan")
+    return float(np.convolve(half, np.ones(50) / 50, mode="valid").min())
+
+
 def report(setting: Setting) -> str:
     oracle = "examples/cartpole_crossings.py:oracle" if setting.oracle == ORACLE else setting.oracle
     lines = [f"# bench/your_own_task.py: task {setting.task}, oracle {oracle}",
@@ -193,7 +208,8 @@ def report(setting: Setting) -> str:
             m, s = mean_sem(v)
             cells.append(f"{m:9.4f} ± {s:7.4f} [{max(v):8.4f}]")
         lines.append(f"{arch:12s} {len(runs):2d} {' '.join(cells)} {np.mean([r['seconds'] for r in runs]):6.0f}")
-    lines.append("# agents: greedy oracle return over 50 episodes (seeds 10^8..); mean [worst] over agent seeds")
+    lines.append("# agents: greedy oracle return over 50 episodes (seeds 10^8..); mean [worst] over agent seeds; late dip: "
+                 "the lowest mean oracle return of 50 consecutive training episodes in the second half (a collapse shows there)")
     for where in [setting.results] + sorted(setting.results.glob("agents_*")):
         if where != setting.results:
             lines.append(f"# agents with config/rl.yaml's settings changed: {where.name[len('agents_'):]}")
@@ -202,9 +218,10 @@ def report(setting: Setting) -> str:
             if not runs:
                 continue
             v = [r["greedy_oracle_return"] for r in runs]
+            dips = [late_dip(Path(r["policy"]).parent / "curve.csv") for r in runs]
             lines.append(f"{reward:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
                          f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
-                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run)")
+                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run); late dip {np.mean(dips):7.2f} [{min(dips):7.2f}]")
     return "\n".join(lines)
 
 
