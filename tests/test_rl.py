@@ -201,7 +201,7 @@ def test_a_short_run_learns_better_than_random():
 
 def test_a_task_spec_takes_the_your_own_task_changes_of_the_rl_config(tmp_path):
     """The paper's tasks get App. E's section as it is; a task spec (your own task) gets it with the
-    `your_own_task` entry's changes; an explicit override beats both."""
+    changes of its environment's entry, else of `your_own_task`; an explicit override beats both."""
     spec = "nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1"
     config = tmp_path / "rl.yaml"
     config.write_text("dqn: {learning_rate: 1.0e-3, tau: 5.0e-3}\n"
@@ -210,6 +210,10 @@ def test_a_task_spec_takes_the_your_own_task_changes_of_the_rl_config(tmp_path):
     assert load_rl_config("dqn", config, task=spec)["learning_rate"] == 3e-4
     assert load_rl_config("dqn", config, task=spec, learning_rate=1e-4)["learning_rate"] == 1e-4
     assert load_rl_config("dqn", config, task=spec, learning_rate=None)["learning_rate"] == 3e-4
+    config.write_text("dqn: {learning_rate: 1.0e-3, tau: 5.0e-3}\nyour_own_task: {dqn: {learning_rate: 3.0e-4}}\n"
+                      "'nmrm_ros.robots.delivery:DeliveryEnv': {dqn: {tau: 1.0e-2}}\n")
+    assert load_rl_config("dqn", config, task=spec) == {"learning_rate": 1e-3, "tau": 1e-2}  # its env's own entry
+    assert load_rl_config("dqn", config, task="gym:CartPole-v1")["learning_rate"] == 3e-4
     config.write_text("dqn: {learning_rate: 1.0e-3}\nyour_own_task: {dqn: {learning_rat: 3.0e-4}}\n")
     with pytest.raises(ValueError, match="unknown RL settings"):
         load_rl_config("dqn", config, task=spec)

@@ -36,8 +36,9 @@ OWN_TASK = "your_own_task"
 
 def load_rl_config(algo: str, path: str | Path | None = None, task: str | None = None, **overrides) -> dict:
     """The `algo` section ("dqn" | "sac") of the RL config; for a task spec (`task` with a colon:
-    your own task) then its `your_own_task` entry's changes to that section; then the non-None
-    `overrides`."""
+    your own task) then the changes to that section of the config's entry for the spec, else for
+    its environment (the spec up to its first comma, e.g. "gym:CartPole-v1"), else of its
+    `your_own_task` entry; then the non-None `overrides`."""
     from ..tasks.gym_task import is_task_spec
 
     source = path or config_path()
@@ -48,10 +49,11 @@ def load_rl_config(algo: str, path: str | Path | None = None, task: str | None =
     cfg = dict(table[algo])
     changes = dict(overrides)
     if task is not None and is_task_spec(task):
-        own = table.get(OWN_TASK) or {}
+        entry = next(k for k in (task, task.split(",")[0], OWN_TASK) if k in table or k == OWN_TASK)
+        own = table.get(entry) or {}
         own = (own.get(algo) or {}) if isinstance(own, dict) else own
         if not isinstance(own, dict):
-            raise ValueError(f"{OWN_TASK}.{algo} in {source} must be a table of settings")
+            raise ValueError(f"{entry}.{algo} in {source} must be a table of settings")
         changes = {**own, **{k: v for k, v in overrides.items() if v is not None}}
     unknown = set(changes) - set(cfg)
     if unknown:
