@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
-from run_cache import stale_settings
+from run_cache import stale_rl_settings, stale_settings
 
 TASKS = ("timer", "moving", "key", "charger")
 ALL_TASKS = TASKS + ("lunar_lander",)
@@ -111,10 +111,8 @@ def train_agent_job(job: tuple) -> dict:
 def stale_agent(out: Path, task: str, episodes: int) -> list[str]:
     """How the finished agent in `out` was trained with other RL settings than today's (config/rl.yaml
     for `task`; empty: it stands)."""
-    from nmrm_ros.rl import algorithm_name, load_rl_config
-
     recorded = json.loads((out / "agent.json").read_text()).get("config") if (out / "agent.json").is_file() else None
-    stale = stale_settings(recorded, load_rl_config(algorithm_name(task), task=task, episodes=episodes))
+    stale = stale_rl_settings(recorded, task, episodes=episodes)
     if stale:
         print(f"# {out.name}: not today's RL settings ({'; '.join(stale)}): training again", flush=True)
     return stale

@@ -19,3 +19,11 @@ def stale_settings(recorded: dict | None, cfg) -> list[str]:
         return ["no recorded config"]
     today = dict(cfg) if isinstance(cfg, dict) else asdict(cfg)
     return [f"{k} {v!r} -> {today[k]!r}" for k, v in recorded.items() if k in today and today[k] != v]
+
+
+def stale_rl_settings(recorded: dict | None, task: str, **overrides) -> list[str]:
+    """`stale_settings` of a finished agent's recorded RL config against today's for `task`
+    (config/rl.yaml with `overrides`)."""
+    from nmrm_ros.rl import algorithm_name, load_rl_config
+
+    return stale_settings(recorded, load_rl_config(algorithm_name(task), task=task, **overrides))

@@ -42,7 +42,7 @@ import numpy as np
 from any_dataset import ens_seeds, train_repeat
 from reproduce_tables import mean_sem
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
-from run_cache import stale_settings
+from run_cache import stale_rl_settings, stale_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "your_own_task"
@@ -160,14 +160,11 @@ def model_done(setting: Setting, arch: str, r: int) -> bool:
 def agent_done(setting: Setting, reward: str, seed: int) -> bool:
     """The agent of (reward, seed) is finished with today's RL settings, and (reward model) learnt on
     today's repeat-0 model."""
-    from nmrm_ros.rl import algorithm_name, load_rl_config
-
     path = setting.agent_results / f"agent_{reward}_s{seed}.json"
     if not path.is_file():
         return False
     res = json.loads(path.read_text())
-    today = load_rl_config(algorithm_name(setting.task), task=setting.task, **dict(setting.rl_set))
-    stale = stale_settings(res.get("rl_config"), today)
+    stale = stale_rl_settings(res.get("rl_config"), setting.task, **dict(setting.rl_set))
     if stale:
         print(f"# {path.name}: not today's RL settings ({'; '.join(stale)}): run again", flush=True)
         return False
@@ -241,7 +238,7 @@ def rl_settings(items: list[str]) -> tuple:
         try:
             value = float(value) if isinstance(value, str) else value  # YAML reads 1e-3 as a string
         except ValueError:
-            pass
+            raise SystemExit(f"--rl-set {name}: {value!r} is not a number") from None
         pairs[name] = value
     try:
         load_rl_config("dqn", **pairs)
