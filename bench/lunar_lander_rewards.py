@@ -29,9 +29,15 @@ leaky ReLU of slope 1e-6: the default's stuck runs pay ~0 exactly where the orac
 head's output there pushed to ~-500 before activation, where the leaky ReLU's gradient is 1e-6 —
 the paper's App. F finds negative predictions in the runs stuck on its plateau); softplus_converge
 (softplus, and the learning rate halved after 10 epochs without improvement instead of the cosine
-to 60 epochs: the stop on convergence of Key and Charger, at most 300 epochs).
+to 60 epochs: the stop on convergence of Key and Charger, at most 300 epochs); softplus_cut
+(softplus, and half the training and validation episodes cut at a random step, labelled with the
+return earned by then: `prefix_fraction` 0.5, `nmrm_ros.datasets.prefixes`; the test split is
+whole episodes), softplus_cut_all (every episode cut), softplus_cut_converge (softplus_cut with
+softplus_converge's schedule).
 Run (variant, seed s): weights s + 1000 j, split s, of the screened dataset of data seed 0 (5000
-episodes). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json.
+episodes). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json; its
+checkpoint runs/lunar_lander_rewards/<variant>_s<s>.pt (`nmrm explain --checkpoint` draws its
+reward maps and probes).
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "lunar_lander" / "rewards"
+MODELS = ROOT / "runs" / "lunar_lander_rewards"  # each run's checkpoint, for `nmrm explain` (not in git)
 VARIANTS = {
     "default": {},
     "reward_l1": {"reward_l1": 0.05},
@@ -57,6 +64,10 @@ VARIANTS = {
     "softplus": {"output_activation": "softplus"},
     "softplus_converge": {"output_activation": "softplus", "schedule": "plateau", "plateau_patience": 10,
                           "plateau_factor": 0.5, "max_epochs": 300},
+    "softplus_cut": {"output_activation": "softplus", "prefix_fraction": 0.5},
+    "softplus_cut_all": {"output_activation": "softplus", "prefix_fraction": 1.0},
+    "softplus_cut_converge": {"output_activation": "softplus", "prefix_fraction": 0.5, "schedule": "plateau",
+                              "plateau_patience": 10, "plateau_factor": 0.5, "max_epochs": 300},
 }
 GROUPS = ("pad", "landing, off the pad", "hover", "after, elsewhere")
 
@@ -114,7 +125,8 @@ def run(job: tuple) -> dict:
     cfg = load_train_config("lunar_lander", seed=seed, **overrides)
     t0 = time.perf_counter()
     result = train_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,
-                                offsets=[1000 * j for j in range(cfg.members)])
+                                offsets=[1000 * j for j in range(cfg.members)],
+                                out=MODELS / f"{variant}_s{seed}")
     seconds = time.perf_counter() - t0
     _, _, test = split_indices(len(ds), seed)
     sub = ds.subset(test)

@@ -8,17 +8,21 @@ is the one it learnt on (its recorded `checkpoint_sha256` against the checkpoint
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import MISSING, asdict, fields
 
 
 def stale_settings(recorded: dict | None, cfg) -> list[str]:
     """The settings in which a finished run's recorded config differs from `cfg` (today's defaults:
-    a TrainConfig, or an RL config dict), as "name old -> new"; settings added since the run are
+    a TrainConfig, or an RL config dict), as "name old -> new". A setting added to TrainConfig since
+    the run counts as its default there (what the run trained with); one added to an RL config is
     not compared. A run that recorded no config is stale as a whole."""
     if not recorded:
         return ["no recorded config"]
     today = dict(cfg) if isinstance(cfg, dict) else asdict(cfg)
-    return [f"{k} {v!r} -> {today[k]!r}" for k, v in recorded.items() if k in today and today[k] != v]
+    then = dict(recorded)
+    if not isinstance(cfg, dict):
+        then = {f.name: f.default for f in fields(cfg) if f.default is not MISSING} | then
+    return [f"{k} {v!r} -> {today[k]!r}" for k, v in then.items() if k in today and today[k] != v]
 
 
 def stale_rl_settings(recorded: dict | None, task: str, **overrides) -> list[str]:

@@ -513,7 +513,12 @@ def train(
     label_swap: float = typer.Option(None, min=0.0, max=1.0, help="label noise: swap this fraction of the training and "
                                      "validation labels between trajectories (paper Sec. 5.2)"),
     reward_l1: float = typer.Option(None, min=0.0, help="override the weight of the L1 sparsity prior on "
-                                    "per-step rewards (config/mil_training.yaml; 0: off)"),
+                                    "per-step rewards (config/mil_training.yaml; 0: off; not used with "
+                                    "--feedback preferences, which leaves the rewards' scale free)"),
+    prefix_fraction: float = typer.Option(None, min=0.0, max=1.0, help="cut this fraction of the training and "
+                                          "validation episodes at a random step, labelled with the return "
+                                          "earned by then (needs the oracle's per-step rewards; default: the "
+                                          "task's config)"),
     output_activation: str = typer.Option(None, help="the head's output activation: none | leaky_relu (the "
                                           "paper's, slope 1e-6) | softplus; default: the task's config"),
     feedback: str = typer.Option(None, help="what to learn from: returns (the MSE of episode returns) | "
@@ -535,7 +540,7 @@ def train(
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
                     reward_l1=reward_l1, feedback=feedback, output_activation=output_activation,
-                    fe_sizes=fe_sizes, head_sizes=head_sizes)
+                    fe_sizes=fe_sizes, head_sizes=head_sizes, prefix_fraction=prefix_fraction)
     if task:  # the settings are checked before any data is loaded or generated
         _bad_input(load_train_config, task, config, **settings)
     if bag:
@@ -555,6 +560,9 @@ def train(
                + (f", {compared} comparisons" if compared else "") + f" ({source}), "
                f"lr {cfg.lr}, batch {cfg.batch_size}, max {cfg.max_epochs} epochs, seed {seed}"
                + (f", {cfg.label_swap:g} of the labels swapped" if cfg.label_swap else ""))
+    if cfg.feedback == "preferences" and reward_l1:
+        typer.echo(f"note: --reward-l1 {reward_l1:g} is not used with --feedback preferences (comparisons leave "
+                   f"the rewards' scale free: the prior would shrink it towards 0)", err=True)
     members = cfg.members if ensemble is None else ensemble
     run = _bad_input(train_and_evaluate, ds, arch, cfg, members, split_seed=split_seed, split_mode=split_mode,
                      out=out, data_source=source)

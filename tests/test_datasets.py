@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nmrm_ros.datasets import (TrajectoryDataset, classify, generate_screened, make_toy_dataset,
+from nmrm_ros.datasets import (TrajectoryDataset, classify, cut_episodes, generate_screened, make_toy_dataset,
                                screen_pool, screening_spec)
 from nmrm_ros.oracles import make_oracle
 from nmrm_ros.tasks.lunar_lander import rollout_lunar_lander
@@ -149,3 +149,19 @@ def test_save_is_atomic_and_appends_npz_like_numpy(tmp_path):
     bare = ds.save(tmp_path / "bare")
     assert bare == tmp_path / "bare.npz" and len(TrajectoryDataset.load(bare)) == 5
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bare.npz", "key.npz"]
+
+
+def test_cut_episodes_label_each_prefix_with_what_it_earned():
+    ds = generate_screened("timer", 200, seed=0)
+    cut = cut_episodes(ds, 0.5, seed=3)
+    shorter = cut.lengths < ds.lengths
+    assert shorter.sum() == 100 and (cut.lengths >= 1).all()
+    np.testing.assert_array_equal(cut.returns[~shorter], ds.returns[~shorter])  # the others keep their labels
+    relabelled = make_oracle("timer").label(cut.states, lengths=cut.lengths)  # a prefix's return, from its states
+    np.testing.assert_allclose(cut.returns, relabelled.returns)
+    i = np.flatnonzero(shorter)[0]
+    np.testing.assert_array_equal(cut.final_states[i], ds.states[i, cut.lengths[i]])
+    assert not cut.states[i, cut.lengths[i]:].any() and not cut.rewards[i, cut.lengths[i]:].any()
+    np.testing.assert_array_equal(cut_episodes(ds, 0.5, seed=3).lengths, cut.lengths)  # seeded
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        cut_episodes(ds, 1.5, seed=0)

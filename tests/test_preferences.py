@@ -131,6 +131,19 @@ def test_a_model_trained_on_comparisons_ranks_held_out_pairs():
     assert scores["csc_lstm"]["preference_accuracy"] > scores["instance_nn"]["preference_accuracy"] + 0.15, scores
 
 
+def test_the_l1_prior_is_not_used_on_comparisons_alone():
+    """Comparisons leave the rewards' scale free: the L1 prior would only shrink it (Timer from
+    comparisons fell to chance with it), so feedback preferences trains the same without it."""
+    from nmrm_ros.mil.pipeline import train_and_evaluate
+
+    ds = with_preferences(make_toy_dataset("push_switch", 100, seed=0), 150, SimulatedTeacher(), seed=0)
+    runs = [train_and_evaluate(ds, "csc_lstm", load_train_config("push_switch", max_epochs=2, feedback="preferences",
+                                                                 reward_l1=l1), progress=False)
+            for l1 in (0.0, 0.5)]
+    for a, b in zip(runs[0].model.parameters(), runs[1].model.parameters()):
+        assert torch.equal(a, b)
+
+
 def test_feedback_errors_are_one_line():
     from nmrm_ros.mil.pipeline import train_and_evaluate
 

@@ -96,3 +96,38 @@ def test_l1_prior_picks_the_true_decomposition_among_equal_returns(key_bags):
     assert int(np.argmin(with_prior)) == cs.index(0.0)
     assert all(a < b for a, b in zip(with_prior[3:], with_prior[4:]))  # grows away from c = 0
     assert all(a > b for a, b in zip(with_prior[:3], with_prior[1:4]))
+
+
+def test_prefix_labels_see_the_credit_the_whole_returns_cannot(key_bags):
+    """Cut half the bags at a random step (labels: the return earned by then): along r + c f(t) the
+    return loss now grows with |c|, so it tells the oracle's decomposition (c = 0) from the others."""
+    from nmrm_ros.datasets import cut_episodes
+
+    cut = cut_episodes(key_bags, 0.5, seed=0)
+    labels = torch.as_tensor(cut.returns, dtype=torch.float32)[None]
+    live = torch.as_tensor(np.arange(100)[None, :] < cut.lengths[:, None])
+    plain = load_train_config("key", reward_l1=0.0)
+    losses = []
+    for c in (0.0, 0.05, 0.2, 0.5):
+        r = (torch.as_tensor(key_bags.rewards, dtype=torch.float32) + c * _zero_sum_profile(100).float()) * live
+        out = MILOutput(r.sum(-1)[None], r[None], torch.zeros(1, *r.shape, 0))
+        losses.append(float(return_loss(out, labels, plain)[0]))
+    assert losses[0] < 1e-8 and all(a < b for a, b in zip(losses, losses[1:]))
+
+
+def test_prefix_fraction_trains_on_prefixes_and_tests_on_whole_episodes(key_bags):
+    from nmrm_ros.datasets import cut_episodes
+    from nmrm_ros.mil.data import split_indices
+    from nmrm_ros.mil.pipeline import train_and_evaluate
+
+    cfg = load_train_config("key", prefix_fraction=0.5, max_epochs=1, members=1)
+    run = train_and_evaluate(key_bags, "csc_lstm", cfg, progress=False)
+    _, val, test = split_indices(len(key_bags), 0)
+    whole = evaluate(run.model, key_bags.subset(test))
+    assert run.test_metrics["return_mse"] == pytest.approx(whole["return_mse"])
+    cut = evaluate(run.model, cut_episodes(key_bags, 0.5, seed=cfg.seed).subset(val))
+    assert run.val_metrics["return_mse"] == pytest.approx(cut["return_mse"])
+    with pytest.raises(ValueError, match="prefix_fraction"):
+        load_train_config("key", prefix_fraction=0.5, feedback="preferences")
+    with pytest.raises(ValueError, match="prefix_fraction"):
+        load_train_config("key", prefix_fraction=1.5)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datasets.prefixes import cut_episodes
 from ..datasets.trajectories import TrajectoryDataset
 from .checkpoint import save_checkpoint
 from .data import split_indices
@@ -66,22 +67,25 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
     weights and shuffle seeded cfg.seed + m, split 80/10/10 per `split_mode`; offsets[m] instead
     of m if given), evaluate each member on its test split and the ensemble's mean on a shared
     one, pick the serving member (best validation criterion) and save a checkpoint to `out` if
-    given. on_epoch: see `train_ensemble`."""
+    given. on_epoch: see `train_ensemble`. cfg.prefix_fraction > 0: the training and validation
+    episodes are those of `cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed)` (some end early,
+    labelled with the return earned by then); the test split is whole episodes."""
+    trained_on = cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed) if cfg.prefix_fraction else ds
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = cfg.model_config(architecture, ds.task, ds.state_size)
     ens = init_ensemble(config, seeds)
-    result = train_ensemble(ens, ds, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
+    result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                             progress=progress, on_epoch=on_epoch)
     member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
-    member_val = [evaluate(ens.member(m), ds.subset(va)) for m, (_, va, _) in enumerate(splits)]
+    member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     test = val = None
     if members == 1:
         test, val = member_test[0], member_val[0]
     elif split_mode != "per_member":
-        test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, ds.subset(splits[0][1]))
+        test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, trained_on.subset(splits[0][1]))
     path = None
     if out is not None:
         path = save_checkpoint(

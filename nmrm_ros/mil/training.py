@@ -28,6 +28,10 @@ training labels, and of its validation labels, are swapped between trajectories
 trajectories' predicted returns, `preference_loss`; the CSC model's return is the sum of its
 rewards, so the loss reaches every step) or `both` (the return MSE plus `preference_weight` times
 the cross-entropy; trajectories without a return label, NaN, are left out of the MSE).
+`prefix_fraction` = f > 0 (`pipeline.train_and_evaluate`): a seeded fraction f of the episodes
+is cut at a random step and labelled with the return earned by then (`datasets.prefixes`; needs
+the oracle's per-step rewards), for training and validation; the test split stays whole. Returns of
+whole episodes cannot say *when* credit is earned; prefixes can.
 Comparisons are split as the trajectories are: one with a trajectory of the test split is a test
 comparison (never trained on); of the others, a seeded tenth (`comparison_split`) validates. The
 validation criterion (early stopping, best weights, plateau cuts; `val_loss` in the history) is
@@ -42,7 +46,11 @@ apart. When every bag has the same length, adding any zero-sum function of time 
 rewards (the LSTM can count steps) leaves every return unchanged, so the return loss alone does
 not fix the per-step rewards; the L1 term's optimum along those directions is f(t) = the median
 of -r_t, i.e. f = 0 wherever most bags get no reward at step t. Its pull on the returns is small:
-at the optimum a bag's return is off by about λ / 2.
+at the optimum a bag's return is off by about λ / 2. It applies with feedback returns and both,
+not with preferences alone: comparisons leave the rewards' scale free, so the prior only shrinks
+it towards 0, where every comparison is a coin toss (Timer, 1000 perfect comparisons, seeds 0-2:
+held-out preference accuracy 0.740 [worst 0.520] with λ 0.05, 0.913 [0.885] without;
+bench/results/preferences/timer_no_l1/).
 """
 
 from __future__ import annotations
@@ -99,6 +107,7 @@ class TrainConfig:
     plateau_factor: float = 0.5  # schedule plateau: the cut
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
+    prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.train_and_evaluate)
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -142,6 +151,9 @@ class TrainConfig:
                  ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h"),
                  ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
                  ("preference_weight", self.preference_weight > 0, "> 0"),
+                 ("prefix_fraction", 0 <= self.prefix_fraction <= 1
+                  and (self.prefix_fraction == 0 or self.feedback == "returns"),
+                  "in [0, 1], and 0 unless feedback is returns (it cuts return-labelled episodes)"),
                  ("output_activation", self.output_activation in ("",) + OUTPUT_ACTIVATIONS,
                   "empty (the task family's) or " + ", ".join(OUTPUT_ACTIVATIONS)),
                  ("fe_sizes", self.fe_sizes is None or (len(self.fe_sizes) >= 1 and _widths(self.fe_sizes)),
@@ -535,7 +547,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
                 x, lengths, _ = bags.batch(torch.cat([pick[..., 0], pick[..., 1]], dim=1).long())
                 out = ens(x, lengths)
                 bt = preference_loss(out.returns[:, :half], out.returns[:, half:], pick[..., 2].float(), scale)
-                member_loss = member_loss + (cfg.preference_weight if use_returns else 1.0) * bt + _l1(out, cfg)
+                member_loss = member_loss + (cfg.preference_weight * bt + _l1(out, cfg) if use_returns else bt)
             optimiser.zero_grad()
             member_loss.sum().backward()
             if cfg.grad_clip > 0:
