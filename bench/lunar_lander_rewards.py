@@ -18,7 +18,10 @@ per step in each group is set beside the oracle's:
 
 and the same groups along the "correct" probe (lands, stays 60 steps, hovers; `nmrm explain`).
 
-Variants (train-config overrides on config/mil_training.yaml's lunar_lander entry):
+Variants: changes to the recipe this study started from (BASE: the lunar_lander entry of
+config/mil_training.yaml until 2026-12-04 — leaky ReLU output, cosine to 60 epochs, whole
+episodes), so that a variant means the same whatever today's entry says (today's is
+softplus_cut_converge):
 default; reward_l1 (an L1 prior on per-step rewards, 0.05 as Timer's); mean_of_3 (members 3);
 paper_lr (lr 1e-4 constant, 200 epochs, the paper's App. D.4 settings at our batch 32);
 forget_bias_4 (the LSTM's initial forget-gate bias 4 instead of 1: a memory of ~50 steps at
@@ -55,6 +58,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "lunar_lander" / "rewards"
 MODELS = ROOT / "runs" / "lunar_lander_rewards"  # each run's checkpoint, for `nmrm explain` (not in git)
+BASE = {"output_activation": "leaky_relu", "schedule": "cosine", "max_epochs": 60, "prefix_fraction": 0.0,
+        "members": 1}
 VARIANTS = {
     "default": {},
     "reward_l1": {"reward_l1": 0.05},
@@ -121,7 +126,7 @@ def run(job: tuple) -> dict:
     from nmrm_ros.mil.pipeline import train_and_evaluate
 
     ds = load_dataset("lunar_lander", 5000, 0)
-    overrides = dict(VARIANTS[variant])
+    overrides = BASE | VARIANTS[variant]
     cfg = load_train_config("lunar_lander", seed=seed, **overrides)
     t0 = time.perf_counter()
     result = train_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,

@@ -1,5 +1,7 @@
 """Toy datasets and screened trajectory datasets (paper App. C, D.2)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -165,3 +167,8 @@ def test_cut_episodes_label_each_prefix_with_what_it_earned():
     np.testing.assert_array_equal(cut_episodes(ds, 0.5, seed=3).lengths, cut.lengths)  # seeded
     with pytest.raises(ValueError, match=r"\[0, 1\]"):
         cut_episodes(ds, 1.5, seed=0)
+    people = dataclasses.replace(ds, returns=ds.returns + 1.0)  # labels that are not the oracle's
+    with pytest.raises(ValueError, match="these labels are not .*--prefix-fraction 0"):
+        cut_episodes(people, 0.5, seed=0)
+    with pytest.raises(ValueError, match="have none"):
+        cut_episodes(dataclasses.replace(ds, meta=dict(ds.meta, oracle_ground_truth=False)), 0.5, seed=0)

@@ -10,8 +10,9 @@ penalised wherever a cut falls between the payment and the steps that earn it.
     short = cut_episodes(ds, fraction=0.5, seed=0)
 
 The label of a cut episode is the oracle's per-step rewards summed up to the cut (`ds.rewards`),
-so this is for simulated (oracle-labelled) datasets; the screening class stays that of the whole
-episode.
+so this is for oracle-labelled datasets only: one whose labels are not the oracle's returns (a
+person's, or a bag without the oracle's ground truth) is refused. The screening class stays that
+of the whole episode.
 """
 
 from __future__ import annotations
@@ -29,8 +30,17 @@ def cut_episodes(ds: TrajectoryDataset, fraction: float, seed: int) -> Trajector
     oracle's rewards up to there (the others keep their labels), their final state the state after that step. Seeded by `seed`."""
     if not 0.0 <= fraction <= 1.0:
         raise ValueError(f"the fraction of episodes to cut must be in [0, 1], got {fraction}")
-    if ds.rewards is None or not np.isfinite(ds.rewards).all():
-        raise ValueError("cutting episodes needs the oracle's per-step rewards of every episode")
+    fix = "use prefix_fraction 0 (nmrm train --prefix-fraction 0)"
+    if ds.rewards is None or not np.isfinite(ds.rewards).all() or ds.meta.get("oracle_ground_truth") is False:
+        raise ValueError(f"prefix labels need the oracle's per-step rewards of every episode, and these "
+                         f"episodes have none: {fix}")
+    labelled = np.flatnonzero(np.isfinite(ds.returns))
+    oracle = ds.rewards[labelled].sum(axis=1)
+    wrong = np.flatnonzero(~np.isclose(ds.returns[labelled], oracle, rtol=1e-5, atol=1e-6))
+    if len(wrong):
+        i = wrong[0]
+        raise ValueError(f"prefix labels are the oracle's, and these labels are not (episode {labelled[i]}: "
+                         f"label {ds.returns[labelled[i]]:g}, the oracle's return {oracle[i]:g}): {fix}")
     if ds.preferences is not None and len(ds.preferences):
         raise ValueError("cutting episodes would leave its comparisons judging episodes that changed")
     rng = np.random.default_rng(seed)
