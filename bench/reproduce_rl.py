@@ -186,14 +186,17 @@ def main() -> None:
 
 
 def report(args, seconds: float) -> None:
-    """The table and plots of every run in --work (all five tasks and four kinds that have runs,
-    whatever this invocation trained), for the seeds asked."""
+    """The table and plots of every run in --work (all five tasks, four kinds and seeds that have
+    runs, whatever this invocation trained)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     args.results.mkdir(parents=True, exist_ok=True)
+    # every run done, whatever seeds this invocation trained (a `--seeds 0` run redraws the whole figure)
+    args.seeds = sorted({int(p.parent.name.rsplit("_seed", 1)[1]) for p in (args.work / "agents").glob("*_seed*/curve.csv")}
+                        | set(args.seeds))
     ran = lambda t, k: any((args.work / "agents" / f"{t}_{k}_seed{s}" / "curve.csv").is_file()  # noqa: E731
                            for s in args.seeds)
     args.tasks = [t for t in ALL_TASKS if any(ran(t, k) for k in KINDS)] or args.tasks
@@ -226,7 +229,7 @@ def report(args, seconds: float) -> None:
             x = np.arange(len(med)) + 20
             ax.plot(x, med, label=KINDS[kind][0])
             ax.fill_between(x, q25, q75, alpha=0.25)
-        ax.set_title(task.capitalize())
+        ax.set_title(task.replace("_", " ").title())
         ax.set_xlabel("episode")
         if i == 0:
             ax.set_ylabel("oracle return (median, IQR)")

@@ -163,3 +163,21 @@ def test_member_offsets_rerun_chosen_repeats_exactly():
     assert one.member_test[0]["return_mse"] == pytest.approx(full.member_test[2]["return_mse"], rel=1e-4)
     with pytest.raises(ValueError, match="2 member offsets for 3 members"):
         member_splits(100, 3, 0, "per_member", offsets=[0, 1])
+
+
+def test_keep_members_best_keeps_the_member_best_on_validation(tmp_path):
+    from nmrm_ros.mil import load_checkpoint, load_train_config
+
+    ds = make_toy_dataset("push_switch", 200, seed=0)
+    everyone = train_and_evaluate(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3), members=3,
+                                  progress=False)
+    cfg = load_train_config("push_switch", max_epochs=3, keep_members="best")
+    run = train_and_evaluate(ds, "csc_lstm", cfg, members=3, progress=False, out=tmp_path / "best")
+    chosen = int(np.argmin(everyone.train.best_val_loss))
+    assert run.model.members == 1 and run.seeds == [chosen]
+    for (name, kept), full in zip(run.model.params.items(), everyone.model.params.values()):
+        torch.testing.assert_close(kept[0], full[chosen], msg=name)
+    model, meta = load_checkpoint(tmp_path / "best")
+    assert model.members == 1 and meta["ensemble"]["candidates"] == 3 and meta["ensemble"]["chosen"] == chosen
+    with pytest.raises(ValueError, match="keep_members"):
+        load_train_config("push_switch", keep_members="worst")

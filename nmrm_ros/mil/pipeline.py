@@ -69,7 +69,9 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
     one, pick the serving member (best validation criterion) and save a checkpoint to `out` if
     given. on_epoch: see `train_ensemble`. cfg.prefix_fraction > 0: the training and validation
     episodes are those of `cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed)` (some end early,
-    labelled with the return earned by then); the test split is whole episodes."""
+    labelled with the return earned by then); the test split is whole episodes. cfg.keep_members
+    "best": of the `members` trained, only the one best on validation is kept (a 1-member
+    ensemble; the checkpoint records the candidates)."""
     trained_on = cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed) if cfg.prefix_fraction else ds
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
@@ -81,6 +83,14 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
     member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
+    candidates = {}
+    if cfg.keep_members == "best" and members > 1:  # the others were candidates: one model is kept
+        candidates = {"candidates": members, "candidate_seeds": seeds, "chosen": serving,
+                      "candidate_val_loss": [float(v) for v in result.best_val_loss]}
+        ens = MILEnsemble.from_members([ens.member(serving)])
+        member_test, member_val = [member_test[serving]], [member_val[serving]]
+        seeds, split_seeds, splits = [seeds[serving]], [split_seeds[serving]], [splits[serving]]
+        members, serving = 1, 0
     test = val = None
     if members == 1:
         test, val = member_test[0], member_val[0]
@@ -93,7 +103,7 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
             train_config=cfg.to_dict(),
             data={"source": data_source, "n": len(ds), "meta": ds.meta},
             ensemble={"members": members, "seeds": seeds, "split_seeds": split_seeds,
-                      "split_mode": split_mode, "serving_member": serving},
+                      "split_mode": split_mode, "serving_member": serving, **candidates},
             metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                      "best_epochs": result.best_epochs, "still_improving": result.still_improving,
                      "epochs_run": result.epochs_run, "seconds": result.seconds})
