@@ -4,7 +4,8 @@ rate > 0: at the recorded timing scaled by `rate` (2.0 = twice as fast); rate = 
 possible; the topics are reliable and keep-all (nmrm_ros.ros.topics), so subscribers queue what
 they have not taken yet and nothing is lost. `topics` filters (empty = all); `loop` starts over at the end. Before
 the first message the node waits for `wait_for_subscribers` subscribers on every replayed topic.
-Without `loop`, the node exits with code 0 after the last message. Before the first message the
+Without `loop`, the node exits with code 0 once every subscriber has acknowledged the last
+message (at most 30 s). Before the first message the
 node also waits for the subscriptions of every node named in `wait_for_nodes`. Messages are
 published in slices of at most 20 ms, so Ctrl-C or SIGTERM stops a replay at once (exit 0).
 """
@@ -22,6 +23,7 @@ from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subs
 from ..ros.topics import STEP_QOS
 
 RETRY_TIMEOUT_S = 60.0  # a full writer history: how long to wait for subscribers to take messages
+ACK_TIMEOUT_S = 30.0  # after the last message: how long to wait for subscribers to acknowledge it
 
 PARAMETERS = {
     "bag": Param("", "bag directory (or .mcap file) to replay"),
@@ -121,7 +123,18 @@ class ReplayNode(Node):
             self.exit_code = 1
 
     def finish_playing(self) -> None:
+        """After the last message: wait until every subscriber has acknowledged what it was sent
+        (at most ACK_TIMEOUT_S; a reliable writer that exits earlier takes the unacknowledged
+        tail with it), then exit 0."""
+        from rclpy.duration import Duration
+
         self.timer.cancel()
+        deadline = time.monotonic() + ACK_TIMEOUT_S
+        for pub in self.pubs.values():
+            left = max(deadline - time.monotonic(), 0.0)
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                self.get_logger().warning(f"subscribers of {pub.topic_name} had not acknowledged every message "
+                                          f"{ACK_TIMEOUT_S:.0f} s after the last: they may miss the end")
         self.get_logger().info(f"replayed {self.published} messages"
                                + (f" ({self.retries} retries while subscribers caught up)" if self.retries else ""))
         self.exit_code = 0
