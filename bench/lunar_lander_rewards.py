@@ -38,7 +38,8 @@ return earned by then: `prefix_fraction` 0.5, `nmrm_ros.datasets.prefixes`; the 
 whole episodes), softplus_cut_all (every episode cut), softplus_cut_converge (softplus_cut with
 softplus_converge's schedule).
 Run (variant, seed s): weights s + 1000 j, split s, of the screened dataset of data seed 0 (5000
-episodes). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json; its
+episodes; column "data": the scripted plans that made it, `nmrm_ros.tasks.lunar_lander.SCRIPTED_PLANS`
+— every run in the table before 2026-12-04 is on plans 1, a run made today on today's plans). Resumes: each run's result is bench/results/lunar_lander/rewards/<variant>_s<s>.json; its
 checkpoint runs/lunar_lander_rewards/<variant>_s<s>.pt (`nmrm explain --checkpoint` draws its
 reward maps and probes).
 """
@@ -142,7 +143,7 @@ def run(job: tuple) -> dict:
     p_len = np.array([p_states.shape[1]])
     p_group, p_oracle = phase_groups(p_states, p_len)
     p_learnt = learnt_rewards(result.model, p_states, p_len)
-    res = {"variant": variant, "seed": seed, "overrides": overrides, "members": cfg.members,
+    res = {"variant": variant, "seed": seed, "plans": ds.meta.get("plans", 1), "overrides": overrides, "members": cfg.members,
            "test": result.test_metrics, "epochs": result.train.epochs_run,
            "best_epochs": result.train.best_epochs, "still_improving": result.train.still_improving,
            "seconds": seconds, "test_placement": placement(group, learnt, oracle),
@@ -157,14 +158,15 @@ def report() -> str:
     runs = sorted((json.loads(p.read_text()) for p in RESULTS.glob("*.json")), key=lambda r: (r["variant"], r["seed"]))
     lines = ["# bench/lunar_lander_rewards.py: CSC on Lunar Lander (data seed 0, split = weight seed s); mean reward per "
              "step, learnt / oracle, by the oracle's phase (test split, and the 'correct' probe)",
-             f"{'variant':10s} {'s':>2s} {'ret MSE':>8s} {'rew MSE':>9s} "
+             f"{'variant':10s} {'s':>2s} {'data':>4s} {'ret MSE':>8s} {'rew MSE':>9s} "
              + " ".join(f"{g:>22s}" for g in GROUPS) + f" {'probe: ' + ' / '.join(GROUPS):>60s}  epochs"]
     for r in runs:
         t = r["test_placement"]
         p = r["probe_correct"]
         cells = " ".join(f"{t[g]['learnt']:9.3f} / {t[g]['oracle']:9.3f}" for g in GROUPS)
         probe = " ".join(f"{p[g]['learnt']:6.2f}/{p[g]['oracle']:5.2f}" for g in GROUPS)
-        lines.append(f"{r['variant']:10s} {r['seed']:2d} {r['test']['return_mse']:8.3f} {r['test']['reward_mse']:9.5f} "
+        lines.append(f"{r['variant']:10s} {r['seed']:2d} {'p' + str(r.get('plans', 1)):>4s} "
+                     f"{r['test']['return_mse']:8.3f} {r['test']['reward_mse']:9.5f} "
                      f"{cells} {probe:>60s}  {r['epochs']}")
     text = "\n".join(lines)
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
-from run_cache import stale_rl_settings, stale_settings
+from run_cache import stale_data, stale_rl_settings, stale_settings
 
 TASKS = ("timer", "moving", "key", "charger")
 ALL_TASKS = TASKS + ("lunar_lander",)
@@ -73,10 +73,10 @@ def train_reward_model(job: tuple) -> dict:
     cfg = load_train_config(task, seed=seed)
     if meta_file.is_file():
         meta = json.loads(meta_file.read_text())
-        stale = stale_settings(meta.get("train_config", {}), cfg)
+        stale = stale_settings(meta.get("train_config", {}), cfg) + stale_data(meta.get("data", {}).get("meta"), task)
         if not stale:
             return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
-        print(f"  {task} {arch} seed {seed}: trained with other settings than today's defaults "
+        print(f"  {task} {arch} seed {seed}: trained with other settings or data than today's "
               f"({', '.join(stale)}): training again", flush=True)
     ds = load_dataset(task, 5000, seed)
     run = train_and_evaluate(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,

@@ -80,9 +80,15 @@ def load_dataset(task: str, n: int, seed: int):
     """The task's dataset (screened, or toy), cached in runs/data/."""
     from nmrm_ros.datasets import TrajectoryDataset, generate_screened, make_toy_dataset
 
+    from run_cache import stale_data
+
     path = CACHE / f"{task}_n{n}_s{seed}.npz"
     if path.is_file():
-        return TrajectoryDataset.load(path)
+        cached = TrajectoryDataset.load(path)
+        stale = stale_data(cached.meta, task)
+        if not stale:
+            return cached
+        print(f"# {path.name}: made by another generator ({', '.join(stale)}): generating again", flush=True)
     ds = make_toy_dataset(task, n, seed=seed) if task in TOY else generate_screened(task, n, seed=seed)
     CACHE.mkdir(parents=True, exist_ok=True)
     ds.save(path)

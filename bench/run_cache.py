@@ -1,8 +1,8 @@
 """When a benchmark's finished run still stands for today's code and defaults.
 
 Benchmarks resume: a run whose result file exists is skipped. That is only right while the run
-was made with today's training (or RL) settings (checked here) and, for an agent, while its reward model
-is the one it learnt on (its recorded `checkpoint_sha256` against the checkpoint's
+was made with today's training (or RL) settings and on data of today's generator (both checked here)
+and, for an agent, while its reward model is the one it learnt on (its recorded `checkpoint_sha256` against the checkpoint's
 `nmrm_ros.mil.checkpoint.recorded_weights_sha256`); otherwise the run is made again.
 """
 
@@ -31,3 +31,16 @@ def stale_rl_settings(recorded: dict | None, task: str, **overrides) -> list[str
     from nmrm_ros.rl import algorithm_name, load_rl_config
 
     return stale_settings(recorded, load_rl_config(algorithm_name(task), task=task, **overrides))
+
+
+def stale_data(recorded_meta: dict | None, task: str) -> list[str]:
+    """How a cached dataset (its meta) or a model's recorded training data (checkpoint
+    ["data"]["meta"]) differs from what today's generator makes for `task`: Lunar Lander's scripted
+    plans are versioned (`nmrm_ros.tasks.lunar_lander.SCRIPTED_PLANS`; data without a version are
+    version 1). Empty when current, or when the data were not generated (a bag, a file of the user's)."""
+    if task != "lunar_lander" or not recorded_meta or recorded_meta.get("policy") != "scripted":
+        return []
+    from nmrm_ros.tasks.lunar_lander import SCRIPTED_PLANS
+
+    then = recorded_meta.get("plans", 1)
+    return [] if then == SCRIPTED_PLANS else [f"scripted plans {then} -> {SCRIPTED_PLANS}"]

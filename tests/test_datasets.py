@@ -8,7 +8,7 @@ import pytest
 from nmrm_ros.datasets import (TrajectoryDataset, classify, cut_episodes, generate_screened, make_toy_dataset,
                                screen_pool, screening_spec)
 from nmrm_ros.oracles import make_oracle
-from nmrm_ros.tasks.lunar_lander import rollout_lunar_lander
+from nmrm_ros.tasks.lunar_lander import SCRIPTED_PLANS, rollout_lunar_lander
 
 
 def test_toy_bag_sizes_and_labels():
@@ -95,10 +95,11 @@ def test_lunar_lander_screening_tops_up_a_short_pool():
     and a dataset that cannot be filled is a one-line error, not a short dataset."""
     from nmrm_ros.datasets.screening import screen_lunar_lander
 
-    ds = screen_lunar_lander(pool_size=20, seed=0, n_target=10)
-    assert len(ds) == 10 and ds.meta["pools"] == 2  # one pool of 20 keeps fewer than 10 (class limit 2)
+    ds = screen_lunar_lander(pool_size=15, seed=0, n_target=10)
+    assert len(ds) == 10 and ds.meta["pools"] == 2  # one pool of 15 keeps fewer than 10 (class limit 2)
     _class_limits_respected(ds)
-    again = screen_lunar_lander(pool_size=20, seed=0, n_target=10)
+    assert ds.meta["plans"] == SCRIPTED_PLANS  # which plan distribution made it (bench caches check it)
+    again = screen_lunar_lander(pool_size=15, seed=0, n_target=10)
     np.testing.assert_array_equal(again.states, ds.states)
     with pytest.raises(ValueError, match=r"only .* episodes kept from 1 pool\(s\)"):
         screen_lunar_lander(pool_size=5, seed=0, n_target=10, max_pools=1)
@@ -107,11 +108,31 @@ def test_lunar_lander_screening_tops_up_a_short_pool():
 def test_lunar_lander_pool_screening():
     pool = rollout_lunar_lander(40, seed=0)
     ds = screen_pool("lunar_lander", pool, n_target=20)
-    # seed 0: classes 0, 6, 9, 11, 12, 17 kept 4, 1, 4, 4, 4, 3 (the limit is ceil(0.2 * 20) = 4)
+    # seed 0: classes 0, 9, 11, 12, 15, 17 kept 4, 4, 4, 1, 4, 3 (the limit is ceil(0.2 * 20) = 4)
     assert len(ds) == 20 and ds.states.shape[1:] == (500, 8)
-    assert np.unique(ds.classes, return_counts=True)[1].tolist() == [4, 1, 4, 4, 4, 3]
+    assert np.unique(ds.classes, return_counts=True)[1].tolist() == [4, 4, 4, 1, 4, 3]
     _class_limits_respected(ds)
     assert np.all(ds.returns >= 0)
+
+
+def test_scripted_lander_lands_on_either_side_of_the_pad_edge():
+    """The scripted plans cover the oracle's pad edge (|x| = 0.2) from both sides: a landing
+    target on the centre counts steps on the pad, one far out counts none (issue 31: agents found
+    the edge that version-1 data, all landed on the centre, never showed the model)."""
+    from nmrm_ros.oracles import make_oracle
+    from nmrm_ros.tasks.lunar_lander import RewardlessLunarLander, ScriptedLanderController, run_episode
+
+    env, oracle = RewardlessLunarLander(episode_length=300), make_oracle("lunar_lander")
+    pad_steps = {}
+    for land_x in (0.0, 0.6):
+        controller = ScriptedLanderController(np.random.default_rng(0))
+        controller.set_plan(wait=60, land=True, noise=0.0, land_x=land_x)
+        states, _, _ = run_episode(env, controller, seed=3, steps=299)
+        ground = (states[:, 6] == 1) & (states[:, 7] == 1)
+        assert ground.sum() >= 50, f"land_x {land_x}: never came to rest"
+        pad_steps[land_x] = oracle.label(states[None]).hidden[0].max()
+    env.close()
+    assert pad_steps == {0.0: 50, 0.6: 0}
 
 
 def test_dataset_save_load_round_trip(tmp_path):

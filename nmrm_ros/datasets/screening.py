@@ -237,7 +237,7 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
     classes' limits leave the dataset short of `n_target`, roll out and screen another pool
     (pool k: episode seeds seed + k * pool_size ...), at most `max_pools` in all (ValueError,
     one line, if still short). A first pool that fills the dataset gives what it always gave."""
-    from ..tasks.lunar_lander import rollout_lunar_lander
+    from ..tasks.lunar_lander import SCRIPTED_PLANS, rollout_lunar_lander
 
     start = time.perf_counter()
     n_target = pool_size if n_target is None else n_target
@@ -256,6 +256,8 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
     ds = concatenate(parts) if len(parts) > 1 else parts[0]
     ds.meta = {"seed": seed, "policy": policy, "generator": "pool_screening", "draws": screener.examined,
                "pool": pool_size, "pools": k + 1, "seconds": time.perf_counter() - start}
+    if policy == "scripted":
+        ds.meta["plans"] = SCRIPTED_PLANS
     return ds
 
 

@@ -17,6 +17,13 @@ from gymnasium.envs.box2d.lunar_lander import LunarLander
 
 EPISODE_LENGTH = 500
 STATE_SIZE = 8
+#: version of `ScriptedLanderController`'s plan distribution, recorded in a dataset's meta ("plans"):
+#: 2 (2026-12-04) lands off the pad's centre and waits close to the 50-step target too, so that the
+#: oracle's two thresholds are covered from both sides (issue 31: agents on models of version-1
+#: data took off after 45-49 steps on the pad, or sat just off it, and were paid in full)
+SCRIPTED_PLANS = 2
+#: half-width of the landing targets drawn off the centre (the pad's is 0.2)
+LAND_X_SPREAD = 0.6
 
 
 class RewardlessLunarLander(LunarLander):
@@ -63,20 +70,25 @@ class ScriptedLanderController:
     def reset(self) -> None:
         """Draw a new random plan for the next episode."""
         r = self.rng
-        # wait on the pad: not at all, shortly, past the 50-step target, or for ever
-        wait = int(r.choice([0, r.integers(1, 50), r.integers(50, 120), 10**6]))
+        # wait on the pad: not at all, shortly, close to the 50-step target (either side), past
+        # it, or for ever
+        wait = int(r.choice([0, r.integers(1, 40), r.integers(40, 61), r.integers(61, 120), 10**6]))
         land = bool(r.random() < 0.85)
+        # land on the pad's centre, or anywhere from well inside to well outside its edges
+        land_x = float(r.choice([0.0, r.uniform(-LAND_X_SPREAD, LAND_X_SPREAD)]))
         hover_y = float(r.uniform(0.4, 1.6))
         hover_x = float(r.uniform(-0.9, 0.9))
         noise = float(r.choice([0.0, 0.2, 0.5]))
-        self.set_plan(wait, land, hover_x, hover_y, noise)
+        self.set_plan(wait, land, hover_x, hover_y, noise, land_x=land_x)
 
     def set_plan(self, wait: int, land: bool = True, hover_x: float = 0.0, hover_y: float = 1.0,
-                 noise: float = 0.0) -> None:
-        """Start an episode with this plan (`reset` draws one at random): stay `wait` steps on
-        the pad (if `land`), then hover at (hover_x, hover_y) with action noise std `noise`."""
+                 noise: float = 0.0, land_x: float = 0.0) -> None:
+        """Start an episode with this plan (`reset` draws one at random): land at x = `land_x`
+        (if `land`; the pad is |x| <= 0.2), stay `wait` steps on the ground, then hover at
+        (hover_x, hover_y) with action noise std `noise`."""
         self.wait, self.land, self.hover_x, self.hover_y, self.noise = int(wait), bool(land), \
             float(hover_x), float(hover_y), float(noise)
+        self.land_x = float(land_x)
         self.pad_steps = 0
         self.phase = "descend" if self.land else "hover"
 
@@ -90,7 +102,7 @@ class ScriptedLanderController:
             if self.pad_steps >= self.wait:
                 self.phase = "hover"
         if self.phase == "descend":
-            tx, ty = 0.0, 0.0
+            tx, ty = self.land_x, 0.0
         elif self.phase == "rest":
             return np.array([-1.0, 0.0], dtype=np.float32)
         else:
@@ -98,7 +110,7 @@ class ScriptedLanderController:
         angle_target = np.clip((x - tx) * 0.5 + vx * 1.0, -0.4, 0.4)
         angle_todo = (angle_target - ang) * 0.5 - vang * 1.0
         if self.phase == "descend":
-            hover_todo = (0.55 * abs(x) - y) * 0.5 - vy * 0.5
+            hover_todo = (0.55 * abs(x - tx) - y) * 0.5 - vy * 0.5
             if cl > 0.5 or cr > 0.5:
                 angle_todo, hover_todo = 0.0, -vy * 0.5
         else:
