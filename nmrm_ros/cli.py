@@ -152,7 +152,9 @@ def dataset_screen(
                                                     "default 2n; your own task or oracle: 4n)"),
     bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
     policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
-                                           "episodes are screened (default: uniform random)"),
+                                           "episodes are screened (default: uniform random); lunar_lander: "
+                                           "an oracle agent's policy.zip whose episodes make a fifth of "
+                                           "the pool (the paper's recycled episodes)"),
     feedback: str = FEEDBACK_OPT, pairs: int = PAIRS_OPT, beta: float = BETA_OPT,
     mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
     skip: float = SKIP_OPT,
@@ -180,7 +182,9 @@ def dataset_generate(
                                                     "default 2n; your own task or oracle: 4n)"),
     bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
     policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
-                                           "episodes are screened (default: uniform random)"),
+                                           "episodes are screened (default: uniform random); lunar_lander: "
+                                           "an oracle agent's policy.zip whose episodes make a fifth of "
+                                           "the pool (the paper's recycled episodes)"),
     feedback: str = FEEDBACK_OPT, pairs: int = PAIRS_OPT, beta: float = BETA_OPT,
     mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
     skip: float = SKIP_OPT,

@@ -232,19 +232,35 @@ def screen_pool(task: str, trajectories: list, n_target: int | None = None,
 
 
 def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | None = None,
-                        policy: str = "scripted", max_pools: int = 20) -> TrajectoryDataset:
+                        policy: str = "scripted", max_pools: int = 20, agent: str | None = None,
+                        agent_fraction: float = 0.2, early: int = 15) -> TrajectoryDataset:
     """Roll out a pool of Lunar Lander episodes with `policy` and screen it (limit 0.2); while the
     classes' limits leave the dataset short of `n_target`, roll out and screen another pool
     (pool k: episode seeds seed + k * pool_size ...), at most `max_pools` in all (ValueError,
-    one line, if still short). A first pool that fills the dataset gives what it always gave."""
+    one line, if still short). A first pool that fills the dataset gives what it always gave.
+
+    `agent` (a policy.zip of an agent trained on the oracle): `agent_fraction` of each pool are its
+    episodes instead (`rollout_agent`, `early` as there; the paper's recycled oracle-agent
+    episodes), shuffled into the pool in a seeded order."""
     from ..tasks.lunar_lander import SCRIPTED_PLANS, rollout_lunar_lander
 
+    if agent is not None and not 0.0 < agent_fraction <= 1.0:
+        raise ValueError(f"agent_fraction must be in (0, 1], got {agent_fraction}")
     start = time.perf_counter()
     n_target = pool_size if n_target is None else n_target
     screener = Screener(screening_spec("lunar_lander"), n_target)
+    n_agent = round(pool_size * agent_fraction) if agent is not None else 0
     parts = []
     for k in range(max_pools):
-        pool = rollout_lunar_lander(pool_size, seed=seed + k * pool_size, policy=policy)
+        first = seed + k * pool_size
+        pool = rollout_lunar_lander(pool_size - n_agent, seed=first, policy=policy) if n_agent < pool_size else []
+        if n_agent:
+            from .agent_episodes import rollout_agent
+
+            pool = pool + rollout_agent(agent, "lunar_lander", n_agent, seed=first + pool_size - n_agent,
+                                        early=early)
+            order = np.random.default_rng(first).permutation(len(pool))
+            pool = [pool[i] for i in order]
         part = screen_pool("lunar_lander", pool, n_target, screener=screener)
         if len(part):
             parts.append(part)
@@ -258,6 +274,8 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
                "pool": pool_size, "pools": k + 1, "seconds": time.perf_counter() - start}
     if policy == "scripted":
         ds.meta["plans"] = SCRIPTED_PLANS
+    if n_agent:
+        ds.meta.update(agent=str(agent), agent_fraction=agent_fraction, early=early)
     return ds
 
 
@@ -265,7 +283,7 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
                       **kwargs) -> TrajectoryDataset:
     """The screened dataset of any task: navigation, the paper's classes over random-policy
     trajectories; lunar_lander, its classes over a scripted pool of `pool_size` episodes (default
-    2 * n_target); a task of the user's (a task spec) or any task with a user's `oracle`
+    2 * n_target; with kwargs policy, an oracle agent's policy.zip, a fifth of them its episodes); a task of the user's (a task spec) or any task with a user's `oracle`
     ("<module>:<function>"), return bins over a pool of a random policy or of kwargs policy (a
     policy.zip; `return_screening`; kwargs pool_size, bins, policy)."""
     from ..tasks import is_task_spec
@@ -283,11 +301,13 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
                                 policy=load_screening_policy(policy, task, seed) if policy else None,
                                 policy_name=str(policy or "random"))
     kwargs.pop("bins", None)
-    if kwargs.pop("policy", None):
-        raise ValueError("--policy screens by return bins: it needs your own task or --oracle")
+    policy = kwargs.pop("policy", None)
     if task == "lunar_lander":
         pool_size = kwargs.pop("pool_size", None) or 2 * n_target
         kwargs.pop("progress", None)
-        return screen_lunar_lander(pool_size=pool_size, seed=seed, n_target=n_target, **kwargs)
+        return screen_lunar_lander(pool_size=pool_size, seed=seed, n_target=n_target, agent=policy, **kwargs)
+    if policy:
+        raise ValueError("--policy screens by return bins: it needs your own task or --oracle "
+                         "(or lunar_lander, whose pool it joins)")
     kwargs.pop("pool_size", None)
     return screen_navigation(task, n_target=n_target, seed=seed, **kwargs)
