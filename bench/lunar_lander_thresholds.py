@@ -17,15 +17,16 @@ centimetres off the oracle's, the agent's episodes score ~90 with the oracle ins
    on the reward of --agent-checkpoint (the model it learnt on: its served state needs it); each
    model then scores the same episodes: mean learnt vs oracle return, and how many episodes it
    overpays by more than 100 (a failed take-off paid as a success). The episodes are kept in
-   runs/lunar_lander_thresholds/ (reused when there).
+   runs/lunar_lander_thresholds/ (keyed by the policy's SHA-256; reused when there).
 
-Prints both tables; writes nothing else. Takes ~10 s a model for the probes, ~1 min for 20 agent episodes.
+Prints both tables (bench/results/lunar_lander/thresholds*.txt are its output); writes nothing else. Takes ~10 s a model for the probes, ~1 min for 20 agent episodes.
 """
 
 from __future__ import annotations
 
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -88,7 +89,10 @@ def agent_episodes(agent: Path, checkpoint: str, episodes: int) -> tuple[list, n
     from nmrm_ros.rl.evaluation import load_agent
     from nmrm_ros.rl.wrappers import make_reward_env
 
-    cache = EPISODES / f"{agent.name}_{episodes}.npz"
+    import hashlib
+
+    digest = hashlib.sha256((agent / "policy.zip").read_bytes()).hexdigest()[:12]
+    cache = EPISODES / f"{agent.name}_{digest}_{episodes}.npz"
     if cache.is_file():
         data = np.load(cache)
         return [s[:n] for s, n in zip(data["states"], data["lengths"])], data["oracle"]
@@ -145,6 +149,7 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(1)
+    print("# command: .venv/bin/python bench/lunar_lander_thresholds.py " + " ".join(sys.argv[1:]), flush=True)
     print(probe_table(args.checkpoints), flush=True)
     if args.agent is not None:
         print(agent_table(args.agent, args.agent_checkpoint or args.checkpoints[0], args.checkpoints, args.episodes))
