@@ -43,7 +43,8 @@ def ens_seeds(r: int, cfg) -> list:
 def train_repeat(arch: str, ds, held, r: int, cfg) -> tuple:
     """Repeat r: `cfg.members` models of `arch` (weight seeds r + 1000 j) trained in one pass on
     split r of `ds`; (ensemble, train result, seconds, test metrics, held-out metrics), both of the
-    members' mean."""
+    members' mean. seconds: the training's CPU time in this process (its wall time with one torch
+    thread, whatever else the machine runs or however long the bench is paused)."""
     from nmrm_ros.mil import evaluate
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
@@ -52,11 +53,18 @@ def train_repeat(arch: str, ds, held, r: int, cfg) -> tuple:
     seeds = ens_seeds(r, cfg)
     train, val, test = split_indices(len(ds), r)
     ens = init_ensemble(cfg.model_config(arch, ds.task, ds.state_size), seeds)
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
-    seconds = time.perf_counter() - t0
+    seconds = time.process_time() - t0
     mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
     return ens, result, seconds, evaluate(mean, ds.subset(test)), evaluate(mean, held)
+
+
+def mean_seconds(runs: list) -> str:
+    """The runs' mean training time, 6 characters: CPU seconds (runs record "clock": "cpu"), or
+    wall seconds marked "w" where any run is older and measured wall time (pauses included)."""
+    wall = any(r.get("clock") != "cpu" for r in runs)
+    return f"{np.mean([r['seconds'] for r in runs]):5.0f}" + ("w" if wall else " ")
 
 
 def run_repeat(job: tuple) -> dict:
@@ -81,7 +89,7 @@ def run_repeat(job: tuple) -> dict:
            "test_return_mse": on_test["return_mse"], "test_reward_mse": on_test["reward_mse"],
            "held_return_mse": on_held["return_mse"], "held_reward_mse": on_held["reward_mse"],
            "best_epochs": result.best_epochs, "epochs": result.epochs_run,
-           "still_improving": result.still_improving, "seconds": seconds, "config": cfg.to_dict()}
+           "still_improving": result.still_improving, "seconds": seconds, "clock": "cpu", "config": cfg.to_dict()}
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{task}_r{r}.json").write_text(json.dumps(res, indent=1))
     return res
@@ -109,7 +117,7 @@ def report(out: Path, tasks: list) -> str:
         over_rew = [r["repeat"] for r in runs if r["held_reward_mse"] > bar_rew]
         lines.append(f"{task:8s} {len(runs):3d} {m:8.3f} ± {s:6.3f} [{max(hr):6.3f}] {bar_ret:6.3f} {len(over_ret):4d} "
                      f"{mw:9.5f} ± {sw:8.5f} [{max(hw):8.5f}] {bar_rew:7.4f} {len(over_rew):4d} "
-                     f"{mt:7.3f} ± {st:5.3f} [{max(tr):5.3f}] {np.mean([r['seconds'] for r in runs]):6.0f} "
+                     f"{mt:7.3f} ± {st:5.3f} [{max(tr):5.3f}] {mean_seconds(runs)} "
                      f"{int(np.median([r['epochs'] for r in runs])):7d}")
         improving = [r["repeat"] for r in runs if any(r["still_improving"])]
         lines.append(f"{'':8s} repeats {[r['repeat'] for r in runs]}; over the return bar {over_ret}, the reward bar "

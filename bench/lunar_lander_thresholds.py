@@ -39,15 +39,12 @@ LAND_XS = (0.0, 0.25, 0.4, 0.6)  # landing targets: the lander comes to rest at 
 
 def model_returns(checkpoint: str, states: list) -> np.ndarray:
     """The model's return of each episode (states (T, 8) each), stepped online as served."""
-    from nmrm_ros.mil import OnlineRewardModel, load_checkpoint
+    from lunar_lander_rewards import learnt_rewards
+    from nmrm_ros.mil import load_checkpoint
 
     model, _ = load_checkpoint(checkpoint, task="lunar_lander")
-    online = OnlineRewardModel(model)
-    out = []
-    for episode in states:
-        online.reset()
-        out.append(sum(online.step(s)[0] for s in episode))
-    return np.asarray(out)
+    return np.asarray([learnt_rewards(model, episode[None], np.array([len(episode)]))[0].sum()
+                       for episode in states])
 
 
 def probe_table(checkpoints: list) -> str:

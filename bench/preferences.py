@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from any_dataset import ens_seeds, train_repeat
+from any_dataset import ens_seeds, mean_seconds, train_repeat
 from reproduce_tables import load_dataset, parse_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,7 +87,7 @@ def run(job: tuple) -> dict:
            "comparisons": 0 if ds.preferences is None else len(ds.preferences),
            "test": {k: on_test[k] for k in keep}, "held": {k: on_held[k] for k in keep},
            "best_epochs": result.best_epochs, "epochs": result.epochs_run,
-           "still_improving": result.still_improving, "seconds": seconds, "config": cfg.to_dict()}
+           "still_improving": result.still_improving, "seconds": seconds, "clock": "cpu", "config": cfg.to_dict()}
     from nmrm_ros.mil import save_checkpoint
 
     serving = int(np.argmin(result.best_val_loss))
@@ -163,7 +163,8 @@ def report(out: Path) -> str:
              "preference accuracy (all pairs with different true returns) and reward correlation "
              "(Pearson r, per step; centred: after removing each step index's mean over the episodes, "
              "the part comparisons can identify); mean [worst] over seeds; teacher perfect: beta = inf; "
-             "noisy: beta = 1, mistake 0.1; returns: n return labels instead of n comparisons",
+             "noisy: beta = 1, mistake 0.1; returns: n return labels instead of n comparisons; s/run: "
+             "training CPU seconds (w: wall seconds of runs from before, pauses of the bench included)",
              f"{'task':8s} {'arch':12s} {'teacher':8s} {'n':>5s} {'seeds':>5s} {'pref. accuracy':>15s} "
              f"{'reward corr.':>15s} {'centred corr.':>15s} {'s/run':>6s}"]
     key = lambda r: (TASKS.index(r["task"]), ARCHS.index(r["arch"]), list(TEACHERS).index(r["teacher"]), r["n"])
@@ -175,7 +176,7 @@ def report(out: Path) -> str:
         lines.append(f"{r0['task']:8s} {r0['arch']:12s} {r0['teacher']:8s} {r0['n']:5d} "
                      f"{','.join(str(r['seed']) for r in cell):>5s} {_cell(cell, 'preference_accuracy')} "
                      f"{_cell(cell, 'reward_correlation')} {_cell(cell, 'reward_correlation_centred')} "
-                     f"{np.mean([r['seconds'] for r in cell]):6.0f}")
+                     f"{mean_seconds(cell)}")
     return "\n".join(lines)
 
 

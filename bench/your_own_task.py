@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from any_dataset import ens_seeds, train_repeat
+from any_dataset import ens_seeds, mean_seconds, train_repeat
 from reproduce_tables import mean_sem
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
 from run_cache import stale_rl_settings, stale_settings
@@ -115,7 +115,7 @@ def run_model(job: tuple) -> dict:
            "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
            "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],
            "held_reward_mse": on_held["reward_mse"], "epochs": result.epochs_run,
-           "best_epochs": result.best_epochs, "seconds": seconds, "checkpoint": str(path),
+           "best_epochs": result.best_epochs, "seconds": seconds, "clock": "cpu", "checkpoint": str(path),
            "config": cfg.to_dict()}
     (setting.results / f"model_{arch}_r{r}.json").write_text(json.dumps(res, indent=1))
     return res
@@ -138,7 +138,7 @@ def run_agent(job: tuple) -> dict:
     res = {"reward": reward, "seed": seed, "checkpoint_sha256": recorded_weights_sha256(checkpoint) if checkpoint else None,
            "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
-           "seconds": seconds, "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"]}
+           "seconds": seconds, "late_dip": late_dip(out / "curve.csv"), "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"]}
     setting.agent_results.mkdir(parents=True, exist_ok=True)
     (setting.agent_results / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
     return res
@@ -204,7 +204,7 @@ def report(setting: Setting) -> str:
             v = [r[key] for r in runs]
             m, s = mean_sem(v)
             cells.append(f"{m:9.4f} ± {s:7.4f} [{max(v):8.4f}]")
-        lines.append(f"{arch:12s} {len(runs):2d} {' '.join(cells)} {np.mean([r['seconds'] for r in runs]):6.0f}")
+        lines.append(f"{arch:12s} {len(runs):2d} {' '.join(cells)} {mean_seconds(runs)}")
     lines.append("# agents: greedy oracle return over 50 episodes (seeds 10^8..); mean [worst] over agent seeds; late dip: "
                  "the lowest mean oracle return of 50 consecutive training episodes in the second half (a collapse shows there)")
     for where in [setting.results] + sorted(setting.results.glob("agents_*")):
@@ -215,7 +215,8 @@ def report(setting: Setting) -> str:
             if not runs:
                 continue
             v = [r["greedy_oracle_return"] for r in runs]
-            dips = [late_dip(Path(r["policy"]).parent / "curve.csv") for r in runs]
+            # recorded with the run (runs/ is not in git); older runs: from their curve, if it is still there
+            dips = [r.get("late_dip", late_dip(Path(r["policy"]).parent / "curve.csv")) for r in runs]
             lines.append(f"{reward:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
                          f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
                          f"{np.mean([r['seconds'] for r in runs]):.0f} s/run); late dip {np.mean(dips):7.2f} [{min(dips):7.2f}]")
