@@ -131,3 +131,13 @@ def test_prefix_fraction_trains_on_prefixes_and_tests_on_whole_episodes(key_bags
         load_train_config("key", prefix_fraction=0.5, feedback="preferences")
     with pytest.raises(ValueError, match="prefix_fraction"):
         load_train_config("key", prefix_fraction=1.5)
+
+
+def test_preferences_drop_a_tasks_prefix_labels():
+    """Lunar Lander's config cuts half the return-labelled episodes (prefix_fraction 0.5); trained
+    from comparisons it simply does not, instead of refusing its own default."""
+    assert load_train_config("lunar_lander").prefix_fraction == 0.5
+    assert load_train_config("lunar_lander", feedback="preferences").prefix_fraction == 0.0
+    assert load_train_config("lunar_lander", feedback="both").prefix_fraction == 0.0
+    with pytest.raises(ValueError, match="prefix_fraction"):
+        load_train_config("lunar_lander", feedback="preferences", prefix_fraction=0.5)

@@ -206,7 +206,8 @@ OWN_TASK = "your_own_task"  # the config entry of a task spec (gym:<id>, module:
 def load_train_config(task: str, path: str | Path | None = None, **overrides) -> TrainConfig:
     """The task's hyperparameters from the YAML config (its `defaults` merged with the task's
     entry; a task spec without an entry of its own takes `your_own_task`), then `overrides`
-    (None values ignored)."""
+    (None values ignored). Feedback other than returns drops the task's prefix labels (prefix_fraction
+    0) unless `overrides` set them."""
     with open(path or _config_path()) as f:
         table = yaml.safe_load(f)
     if ":" in task and task not in table and OWN_TASK in table:  # a task spec without an entry of its own
@@ -215,7 +216,10 @@ def load_train_config(task: str, path: str | Path | None = None, **overrides) ->
         known = ", ".join(k for k in table if k != "defaults" and not k.startswith("_"))
         raise ValueError(f"no training config for {task!r} in {path or _config_path()}; known: {known}")
     values = dict(table.get("defaults", {}), **table[task])
-    values.update({k: v for k, v in overrides.items() if v is not None})
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if given.get("feedback", values.get("feedback", "returns")) != "returns" and "prefix_fraction" not in given:
+        values["prefix_fraction"] = 0.0  # a task's prefix labels cut return-labelled episodes only
+    values.update(given)
     unknown = set(values) - set(TrainConfig.__dataclass_fields__)
     if unknown:
         raise ValueError(f"unknown training settings {sorted(unknown)}")
