@@ -577,9 +577,14 @@ def _print_run(run, cfg) -> None:
     """What `nmrm train` prints of a run: the single model's line, or one per member and the mean."""
     t = run.train
     if run.model.members == 1:
-        typer.echo(f"best epoch {t.best_epochs[0]}/{t.epochs_run} in {t.seconds:.1f} s; "
+        c = run.chosen or 0  # keep_members best: the kept candidate's entry in the training record
+        if run.chosen is not None:
+            losses = ", ".join(f"{v:.4g}" for v in t.best_val_loss)
+            typer.echo(f"best of {len(t.best_val_loss)} candidates on validation (losses {losses}): "
+                       f"candidate {c}, seed {run.seeds[0]}")
+        typer.echo(f"best epoch {t.best_epochs[c]}/{t.epochs_run} in {t.seconds:.1f} s; "
                    f"test {_metrics_line(run.test_metrics)}")
-        if t.still_improving[0]:
+        if t.still_improving[c]:
             typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
     else:
         typer.echo(f"{run.model.members} members in one pass: {t.epochs_run} epochs in {t.seconds:.1f} s")

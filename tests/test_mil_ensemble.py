@@ -174,7 +174,7 @@ def test_keep_members_best_keeps_the_member_best_on_validation(tmp_path):
     cfg = load_train_config("push_switch", max_epochs=3, keep_members="best")
     run = train_and_evaluate(ds, "csc_lstm", cfg, members=3, progress=False, out=tmp_path / "best")
     chosen = int(np.argmin(everyone.train.best_val_loss))
-    assert run.model.members == 1 and run.seeds == [chosen]
+    assert run.model.members == 1 and run.seeds == [chosen] and run.chosen == chosen
     for (name, kept), full in zip(run.model.params.items(), everyone.model.params.values()):
         torch.testing.assert_close(kept[0], full[chosen], msg=name)
     model, meta = load_checkpoint(tmp_path / "best")

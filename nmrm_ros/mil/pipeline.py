@@ -33,6 +33,7 @@ class RunResult:
     seeds: list
     split_seeds: list
     checkpoint: Path | None
+    chosen: int | None = None  # keep_members best: the kept candidate's index in `train` (K entries)
 
 
 def member_splits(n: int, members: int, split_seed: int, mode: str,
@@ -107,4 +108,5 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
             metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                      "best_epochs": result.best_epochs, "still_improving": result.still_improving,
                      "epochs_run": result.epochs_run, "seconds": result.seconds})
-    return RunResult(ens, result, member_test, member_val, test, val, seeds, split_seeds, path)
+    return RunResult(ens, result, member_test, member_val, test, val, seeds, split_seeds, path,
+                     candidates.get("chosen"))
