@@ -24,6 +24,8 @@ Output (bench/results/): reproduce_rl.png (oracle-return curves, median and inte
 over runs of a moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
 episodes, mean +/- SEM and worst seed), and every run's curve.csv + agent.json, copied to
 bench/results/reproduce_rl/agents/ (copy them into --work/agents to continue an incomplete table).
+Lunar Lander's models (~90 KB each; an agent on one costs ~1 h, and a new model means a new agent)
+are kept in bench/results/reproduce_rl/models/ (copy them into --work/models likewise).
 """
 
 from __future__ import annotations
@@ -154,7 +156,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--work", type=Path, default=Path("runs/reproduce_rl"),
                         help="models/ and agents/ (a run whose agents/NAME/curve.csv exists is not run "
-                             "again: copy bench/results/reproduce_rl/agents there to continue a table)")
+                             "again: copy bench/results/reproduce_rl/agents there to continue a table, and "
+                             "bench/results/reproduce_rl/models, Lunar Lander's models, whose agents cost ~1 h)")
     parser.add_argument("--models-only", action="store_true", help="train the reward models and stop")
     parser.add_argument("--results", type=Path, default=Path("bench/results"))
     parser.add_argument("--report-only", action="store_true", help="only tabulate and plot the runs done so far")
