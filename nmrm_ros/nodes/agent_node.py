@@ -118,6 +118,7 @@ class AgentNode(Node):
         self.dropped = 0
         self.pubs = [self.create_publisher(AgentAction, robot_topic(r, ACTION), STEP_QOS) for r in self.robots]
         self.subs: list = []
+        self.label_subs: list = []  # one per robot (learner only): its labeller's TrajectoryReturns
         if p["observe"] not in ("reward_step", "observation"):
             raise NodeError(f"unknown observe {p['observe']!r}: use 'reward_step' or 'observation'")
         for i, robot in enumerate(self.robots):
@@ -125,8 +126,9 @@ class AgentNode(Node):
                 self.subs.append(self.create_subscription(
                     RewardStep, robot_topic(robot, REWARD_STEP),
                     lambda m, i=i: self.learner.on_reward_step(m, i), STEP_QOS))
-                self.create_subscription(TrajectoryReturn, robot_topic(robot, TRAJECTORY_RETURN),
-                                         lambda m, i=i: self.learner.on_label(m, i), STEP_QOS)
+                self.label_subs.append(self.create_subscription(
+                    TrajectoryReturn, robot_topic(robot, TRAJECTORY_RETURN),
+                    lambda m, i=i: self.learner.on_label(m, i), STEP_QOS))
             elif p["observe"] == "reward_step":
                 self.subs.append(self.create_subscription(
                     RewardStep, robot_topic(robot, REWARD_STEP),
@@ -326,6 +328,7 @@ class Learner:
             finally:
                 self.learn_seconds = time.monotonic() - t0
             self.outcome = f"finished {self.episodes} episodes"
+            self.wait_for_labels()
         except LearnerStopped:
             self.outcome = "stopped by shutdown"
         except Exception as exc:  # noqa: BLE001 - a learner failure must not lose the policy
@@ -385,6 +388,22 @@ class Learner:
                 + f", {sum(r[2] for r in self.records) / max(self.records[-1][3], 1e-9):.0f} steps/s")
         if self.save_every and n % self.save_every == 0 and n < self.episodes:
             self.save()
+
+    def wait_for_labels(self, timeout: float = 5.0) -> None:
+        """Finished: the last episodes' oracle labels may still be on their way (a labeller
+        publishes an episode's return once its final step has arrived, while the learner ends on
+        that same step). Wait up to `timeout` s for the label of every episode of a robot whose
+        label topic has a publisher, so that the saved curve has them."""
+        labelled = {i for i, sub in enumerate(self.node.label_subs) if sub.get_publisher_count() > 0}
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                missing = [key for key, *_ in self.records if key[0] in labelled and key not in self.labels]
+            if not missing:
+                return
+            time.sleep(0.05)
+        self.node.get_logger().warning(f"saving without the oracle label of {len(missing)} episode(s) "
+                                       f"(none arrived within {timeout:.0f} s of the last step)")
 
     def save(self) -> None:
         from ..rl import LearningCurve, save_agent
