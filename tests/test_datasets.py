@@ -108,9 +108,9 @@ def test_lunar_lander_screening_tops_up_a_short_pool():
 def test_lunar_lander_pool_screening():
     pool = rollout_lunar_lander(40, seed=0)
     ds = screen_pool("lunar_lander", pool, n_target=20)
-    # seed 0: classes 0, 9, 11, 12, 15, 17 kept 4, 4, 4, 1, 4, 3 (the limit is ceil(0.2 * 20) = 4)
+    # seed 0 (plans version 3): classes 0, 9, 11, 12, 15, 17 kept 4, 4, 4, 2, 3, 3 (the limit is ceil(0.2 * 20) = 4)
     assert len(ds) == 20 and ds.states.shape[1:] == (500, 8)
-    assert np.unique(ds.classes, return_counts=True)[1].tolist() == [4, 4, 4, 1, 4, 3]
+    assert np.unique(ds.classes, return_counts=True)[1].tolist() == [4, 4, 4, 2, 3, 3]
     _class_limits_respected(ds)
     assert np.all(ds.returns >= 0)
 
@@ -133,6 +133,31 @@ def test_scripted_lander_lands_on_either_side_of_the_pad_edge():
         pad_steps[land_x] = oracle.label(states[None]).hidden[0].max()
     env.close()
     assert pad_steps == {0.0: 50, 0.6: 0}
+
+
+def test_scripted_lander_lands_again_after_the_pad_phase():
+    """Plans version 3: some take-offs end on the ground again and stay there, so the data show
+    the model that contact after the pad phase earns only the shaping term (issue 31: an agent on
+    a model of version-2 data hopped after its 50 pad steps, sat down again and was paid ~1.5 a
+    step for it, where the oracle pays ~0.1)."""
+    from nmrm_ros.oracles import make_oracle
+    from nmrm_ros.tasks.lunar_lander import RewardlessLunarLander, ScriptedLanderController, run_episode
+
+    env, oracle = RewardlessLunarLander(), make_oracle("lunar_lander")
+    controller = ScriptedLanderController(np.random.default_rng(0))
+    controller.set_plan(wait=50, land=True, noise=0.0, reland_after=5, reland_x=0.0)
+    states, _, _ = run_episode(env, controller, seed=0, steps=499)
+    env.close()
+    labels = oracle.label(states[None])
+    tail = slice(-100, None)
+    assert labels.hidden[0].max() == 50 and controller.phase == "down"
+    assert np.all(states[tail, 6] == 1) and np.all(states[tail, 7] == 1)
+    assert np.all(labels.rewards[0][tail] <= 0.2)      # shaping only: no pad, no-contact or hover term
+    drawn = []
+    for seed in range(200):
+        c = ScriptedLanderController(np.random.default_rng(seed))
+        drawn.append(c.reland_after > 0)
+    assert 0.2 < np.mean(drawn) < 0.4                   # RELAND_FRACTION of the plans (0.3)
 
 
 def test_dataset_save_load_round_trip(tmp_path):

@@ -20,8 +20,13 @@ STATE_SIZE = 8
 #: version of `ScriptedLanderController`'s plan distribution, recorded in a dataset's meta ("plans"):
 #: 2 (2026-12-04) lands off the pad's centre and waits close to the 50-step target too, so that the
 #: oracle's two thresholds are covered from both sides (issue 31: agents on models of version-1
-#: data took off after 45-49 steps on the pad, or sat just off it, and were paid in full)
-SCRIPTED_PLANS = 2
+#: data took off after 45-49 steps on the pad, or sat just off it, and were paid in full);
+#: 3 (2026-12-04) lands again after some of the take-offs and stays down, so that the data show
+#: contact after the pad phase paying nothing (an agent on a model of version-2 data hopped after
+#: its 50 pad steps and sat down again, paid ~1.5 a step for it where the oracle pays ~0.1)
+SCRIPTED_PLANS = 3
+#: fraction of the plans that take off after resting and land again (plans version 3)
+RELAND_FRACTION = 0.3
 #: half-width of the landing targets drawn off the centre (the pad's is 0.2)
 LAND_X_SPREAD = 0.6
 
@@ -59,9 +64,10 @@ class RewardlessLunarLander(LunarLander):
 
 class ScriptedLanderController:
     """A PD controller that lands on the pad, stays `wait` steps, takes off and hovers at
-    `hover_y`. Timing, targets and action noise are drawn from `rng` per episode, so a pool of
+    `hover_y` (and in some plans lands again after `reland_after` steps in the air and stays
+    down). Timing, targets and action noise are drawn from `rng` per episode, so a pool of
     episodes covers many of the screening classes (never landing, short stays, long stays, with
-    and without hovering)."""
+    and without hovering, back on the ground after the pad phase)."""
 
     def __init__(self, rng: np.random.Generator) -> None:
         self.rng = rng
@@ -79,17 +85,26 @@ class ScriptedLanderController:
         hover_y = float(r.uniform(0.4, 1.6))
         hover_x = float(r.uniform(-0.9, 0.9))
         noise = float(r.choice([0.0, 0.2, 0.5]))
-        self.set_plan(wait, land, hover_x, hover_y, noise, land_x=land_x)
+        # some take-offs end on the ground again, shortly (a hop) or after a long flight
+        reland_after = int(r.integers(1, 150)) if r.random() < RELAND_FRACTION else 0
+        reland_x = float(r.choice([0.0, r.uniform(-LAND_X_SPREAD, LAND_X_SPREAD)]))
+        self.set_plan(wait, land, hover_x, hover_y, noise, land_x=land_x,
+                      reland_after=reland_after, reland_x=reland_x)
 
     def set_plan(self, wait: int, land: bool = True, hover_x: float = 0.0, hover_y: float = 1.0,
-                 noise: float = 0.0, land_x: float = 0.0) -> None:
+                 noise: float = 0.0, land_x: float = 0.0, reland_after: int = 0,
+                 reland_x: float = 0.0) -> None:
         """Start an episode with this plan (`reset` draws one at random): land at x = `land_x`
         (if `land`; the pad is |x| <= 0.2), stay `wait` steps on the ground, then hover at
-        (hover_x, hover_y) with action noise std `noise`."""
+        (hover_x, hover_y) with action noise std `noise`; with `reland_after` > 0, after that many
+        steps of the take-off land again at x = `reland_x` and stay down."""
         self.wait, self.land, self.hover_x, self.hover_y, self.noise = int(wait), bool(land), \
             float(hover_x), float(hover_y), float(noise)
         self.land_x = float(land_x)
+        self.reland_after, self.reland_x = int(reland_after), float(reland_x)
         self.pad_steps = 0
+        self.air_steps = 0  # steps since the take-off after resting
+        self.rested = False
         self.phase = "descend" if self.land else "hover"
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
@@ -100,16 +115,22 @@ class ScriptedLanderController:
         if self.phase == "rest":
             self.pad_steps += 1
             if self.pad_steps >= self.wait:
-                self.phase = "hover"
-        if self.phase == "descend":
+                self.phase, self.rested = "hover", True
+        if self.phase == "hover" and self.rested and self.reland_after:
+            self.air_steps += 1
+            if self.air_steps > self.reland_after:
+                self.phase, self.land_x = "reland", self.reland_x
+        if self.phase == "reland" and on_ground:
+            self.phase = "down"
+        if self.phase in ("descend", "reland"):
             tx, ty = self.land_x, 0.0
-        elif self.phase == "rest":
+        elif self.phase in ("rest", "down"):
             return np.array([-1.0, 0.0], dtype=np.float32)
         else:
             tx, ty = self.hover_x, self.hover_y
         angle_target = np.clip((x - tx) * 0.5 + vx * 1.0, -0.4, 0.4)
         angle_todo = (angle_target - ang) * 0.5 - vang * 1.0
-        if self.phase == "descend":
+        if self.phase in ("descend", "reland"):
             hover_todo = (0.55 * abs(x - tx) - y) * 0.5 - vy * 0.5
             if cl > 0.5 or cr > 0.5:
                 angle_todo, hover_todo = 0.0, -vy * 0.5
