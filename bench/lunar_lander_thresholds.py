@@ -17,7 +17,8 @@ centimetres off the oracle's, the agent's episodes score ~90 with the oracle ins
    on the reward of --agent-checkpoint (the model it learnt on: its served state needs it); each
    model then scores the same episodes: mean learnt vs oracle return, and how many episodes it
    overpays by more than 100 (a failed take-off paid as a success). The episodes are kept in
-   runs/lunar_lander_thresholds/ (keyed by the policy's SHA-256; reused when there).
+   runs/lunar_lander_thresholds/ (keyed by the policy's SHA-256; reused when there). Then where
+   along its first two episodes each 25 steps are paid by the oracle and by that model.
 
 Prints both tables (bench/results/lunar_lander/thresholds*.txt are its output); writes nothing else. Takes ~10 s a model for the probes, ~1 min for 20 agent episodes.
 """
@@ -128,6 +129,35 @@ def agent_table(agent: Path, agent_checkpoint: str, checkpoints: list, episodes:
     return "\n".join(lines)
 
 
+def agent_timeline(agent: Path, agent_checkpoint: str, episodes: int, shown: int = 2, window: int = 25) -> str:
+    """Where along its greedy episodes the model pays the agent and the oracle does not: per
+    `window` steps of the first `shown` episodes, the lander's mean x, y and leg contacts, the
+    oracle's pad count, and the oracle's and the model's pay (issue 31: an agent that hopped after
+    its 50 pad steps and sat down again, paid ~1.5 a step by the model, ~0.1 by the oracle)."""
+    from lunar_lander_rewards import learnt_rewards
+    from nmrm_ros.mil import load_checkpoint
+    from nmrm_ros.oracles import make_oracle
+
+    states, _ = agent_episodes(agent, agent_checkpoint, episodes)
+    model, _ = load_checkpoint(agent_checkpoint, task="lunar_lander")
+    oracle = make_oracle("lunar_lander")
+    lines = [f"# {agent.name}: its first {shown} greedy episodes per {window} steps, paid by the oracle and by "
+             f"{Path(agent_checkpoint).name}",
+             f"{'ep':>2} {'t':>4} {'x':>6} {'y':>6} {'legs':>9} {'pad':>4} {'oracle':>7} {'model':>7}"]
+    for i, s in enumerate(states[:shown]):
+        learnt = learnt_rewards(model, s[None], np.array([len(s)]))[0]
+        labels = oracle.label(s[None])
+        pad = np.asarray(labels.hidden[0]).reshape(len(s), -1)[:, 0]
+        paid = labels.rewards[0]
+        for a in range(0, len(s), window):
+            w = slice(a, a + window)
+            lines.append(f"{i:2d} {a:4d} {s[w, 0].mean():6.2f} {s[w, 1].mean():6.2f} "
+                         f"{s[w, 6].mean():4.1f}/{s[w, 7].mean():4.1f} {int(pad[min(a + window, len(s)) - 1]):4d} "
+                         f"{paid[w].sum():7.1f} {learnt[w].sum():7.1f}")
+        lines.append(f"{i:2d} {'all':>4} {'':>6} {'':>6} {'':>9} {'':>4} {paid.sum():7.1f} {learnt.sum():7.1f}")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoints", nargs="+", required=True, help="Lunar Lander MIL checkpoints (.pt)")
@@ -150,6 +180,7 @@ def main() -> None:
     print(probe_table(args.checkpoints), flush=True)
     if args.agent is not None:
         print(agent_table(args.agent, args.agent_checkpoint or args.checkpoints[0], args.checkpoints, args.episodes))
+        print(agent_timeline(args.agent, args.agent_checkpoint or args.checkpoints[0], args.episodes), flush=True)
 
 
 if __name__ == "__main__":
