@@ -113,11 +113,11 @@ def agent(job: tuple) -> dict:
 
     name = run_name(task, "csc_lstm", teacher, RL_N, r)
     checkpoint = MODELS / out.name / "models" / f"{name}.pt"
-    if not checkpoint.is_file():
-        run((task, "csc_lstm", teacher, RL_N, r, overrides, out))
     agent_dir = out / "agents" / name
     curve = agent_dir / "curve.csv"
     if not curve.is_file():
+        if not checkpoint.is_file():
+            run((task, "csc_lstm", teacher, RL_N, r, overrides, out))
         t0 = time.perf_counter()
         train_agent(task, "model", checkpoint=checkpoint, episodes=episodes, seed=r,
                     out=MODELS / out.name / "agents" / name, progress=False)
