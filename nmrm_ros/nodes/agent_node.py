@@ -396,11 +396,13 @@ class Learner:
         label topic has a publisher, so that the saved curve has them."""
         labelled = {i for i, sub in enumerate(self.node.label_subs) if sub.get_publisher_count() > 0}
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        while True:
             with self.lock:
                 missing = [key for key, *_ in self.records if key[0] in labelled and key not in self.labels]
             if not missing:
                 return
+            if time.monotonic() >= deadline:
+                break
             time.sleep(0.05)
         self.node.get_logger().warning(f"saving without the oracle label of {len(missing)} episode(s) "
                                        f"(none arrived within {timeout:.0f} s of the last step)")

@@ -104,7 +104,6 @@ class ScriptedLanderController:
         self.reland_after, self.reland_x = int(reland_after), float(reland_x)
         self.pad_steps = 0
         self.air_steps = 0  # steps since the take-off after resting
-        self.rested = False
         self.phase = "descend" if self.land else "hover"
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
@@ -115,8 +114,9 @@ class ScriptedLanderController:
         if self.phase == "rest":
             self.pad_steps += 1
             if self.pad_steps >= self.wait:
-                self.phase, self.rested = "hover", True
-        if self.phase == "hover" and self.rested and self.reland_after:
+                self.phase = "hover"
+        # a landing plan hovers only after its rest on the ground
+        if self.phase == "hover" and self.land and self.reland_after:
             self.air_steps += 1
             if self.air_steps > self.reland_after:
                 self.phase, self.land_x = "reland", self.reland_x
