@@ -19,12 +19,14 @@ from __future__ import annotations
 import csv
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
+from tqdm import TqdmExperimentalWarning
 
 from ..mil.checkpoint import recorded_weights_sha256
 
@@ -208,7 +210,9 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
         callback = EpisodeCurveCallback(on_episode=on_episode)
     callback.max_episodes = episodes
     t0 = time.perf_counter()
-    model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
+    with warnings.catch_warnings():  # SB3's progress bar is tqdm.rich, which warns that it is experimental
+        warnings.simplefilter("ignore", TqdmExperimentalWarning)
+        model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
     seconds = time.perf_counter() - t0
     out_dir = None
     if out is not None:
