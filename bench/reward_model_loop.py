@@ -14,7 +14,12 @@ episodes of double DQN), both judged by the oracle:
 Figures: the agent's final oracle return (mean of its last 50 training episodes) and its greedy
 policy's oracle return on 50 new episodes; per cell the median and the range over seeds.
 
-Resumes: each run's loop.json is copied to bench/results/reward_model_loop/<task>_<mode>_<B>_s<s>.json,
+`--feedback preferences`: the same with a perfect simulated teacher's comparisons instead of
+return labels (B comparisons in all: B / R a round, each new episode against earlier ones; the
+offline run: B comparisons of B screened random episodes); results in
+bench/results/reward_model_loop/preferences/.
+
+Resumes: each run's loop.json is copied to bench/results/reward_model_loop/[preferences/]<task>_<mode>_<B>_s<s>.json,
 and a run whose file exists is not run again.
 """
 
@@ -39,9 +44,14 @@ def run_name(task: str, mode: str, budget: int, seed: int) -> str:
     return f"{task}_{mode}_{budget}_s{seed}"
 
 
+def results_dir(feedback: str) -> Path:
+    return RESULTS if feedback == "returns" else RESULTS / feedback
+
+
 def run_one(job: tuple) -> dict:
-    task, mode, budget, seed, rounds, work = job
-    done = RESULTS / f"{run_name(task, mode, budget, seed)}.json"
+    task, mode, budget, seed, rounds, work, feedback = job
+    results = results_dir(feedback)
+    done = results / f"{run_name(task, mode, budget, seed)}.json"
     if done.is_file():
         return json.loads(done.read_text())
     import torch
@@ -49,28 +59,33 @@ def run_one(job: tuple) -> dict:
     torch.set_num_threads(1)
     from nmrm_ros.rl.reward_model_loop import run_loop
 
-    out = work / run_name(task, mode, budget, seed)
+    name = run_name(task, mode, budget, seed) + ("" if feedback == "returns" else f"_{feedback}")
+    out = work / name
     shutil.rmtree(out, ignore_errors=True)  # an interrupted run starts again
     r = rounds if mode == "loop" else 1
-    log = open(work / f"{run_name(task, mode, budget, seed)}.log", "w")
-    run_loop(task, r, budget // r, seed=seed, out=out, log=lambda m: print(m, file=log, flush=True))
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    log = open(work / f"{name}.log", "w")
+    run_loop(task, r, budget // r, seed=seed, out=out, log=lambda m: print(m, file=log, flush=True),
+             feedback=feedback)
+    results.mkdir(parents=True, exist_ok=True)
     shutil.copy(out / "loop.json", done)
     return json.loads(done.read_text())
 
 
-def report(tasks: list, budgets: list) -> str:
+def report(tasks: list, budgets: list, feedback: str = "returns") -> str:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
-    lines = ["# bench/reward_model_loop.py: final oracle return (mean of the last 50 of 400 training "
+    results = results_dir(feedback)
+    what = "labels" if feedback == "returns" else "comparisons"
+    runs = [json.loads(p.read_text()) for p in sorted(results.glob("*.json"))]
+    lines = [f"# bench/reward_model_loop.py ({feedback}): final oracle return (mean of the last 50 of 400 training "
              "episodes) / greedy policy on 50 new episodes; median [min, max] over seeds (n)",
              "# command: .venv/bin/python bench/reward_model_loop.py --tasks " + " ".join(tasks) + " --budgets "
-             + " ".join(map(str, budgets)) + " (loop: 4 rounds of budget / 4 labels; offline: 1 round)",
-             f"{'task':8s} {'labels':>6s} {'mode':8s} {'n':>2s} {'final':>26s} {'greedy':>26s} {'rounds':>6s}"]
+             + " ".join(map(str, budgets)) + ("" if feedback == "returns" else f" --feedback {feedback}")
+             + f" (loop: 4 rounds of budget / 4 {what}; offline: 1 round)",
+             f"{'task':8s} {what[:6]:>6s} {'mode':8s} {'n':>2s} {'final':>26s} {'greedy':>26s} {'rounds':>6s}"]
     fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.4), squeeze=False)
     for i, task in enumerate(tasks):
         ax = axes[0][i]
@@ -101,16 +116,16 @@ def report(tasks: list, budgets: list) -> str:
             ax.fill_between(xs, [g.min() for g in greedy], [g.max() for g in greedy], color=colour, alpha=0.2)
         ax.set_xscale("log")
         ax.set_xticks(budgets, [str(b) for b in budgets])
-        ax.set_xlabel("labels (episodes)")
+        ax.set_xlabel("labels (episodes)" if feedback == "returns" else "comparisons")
         ax.set_title(task.capitalize())
         if i == 0:
             ax.set_ylabel("greedy oracle return")
             ax.legend(fontsize=7)
     fig.tight_layout()
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    fig.savefig(RESULTS / "loop_vs_offline.png", dpi=120)
+    results.mkdir(parents=True, exist_ok=True)
+    fig.savefig(results / "loop_vs_offline.png", dpi=120)
     text = "\n".join(lines)
-    (RESULTS / "table.txt").write_text(text + "\n")
+    (results / "table.txt").write_text(text + "\n")
     return text
 
 
@@ -124,17 +139,20 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--work", type=Path, default=Path("runs/reward_model_loop"))
     parser.add_argument("--report", action="store_true", help="run nothing: the table and plot of what is there")
+    parser.add_argument("--feedback", default="returns", choices=("returns", "preferences"),
+                        help="return labels, or a perfect simulated teacher's comparisons")
     args = parser.parse_args()
     if not args.report:
         args.work.mkdir(parents=True, exist_ok=True)
-        jobs = [(t, m, b, s, args.rounds, args.work) for s in args.seeds for b in args.budgets for t in args.tasks
-                for m in args.modes if not (RESULTS / f"{run_name(t, m, b, s)}.json").is_file()]
+        results = results_dir(args.feedback)
+        jobs = [(t, m, b, s, args.rounds, args.work, args.feedback) for s in args.seeds for b in args.budgets
+                for t in args.tasks for m in args.modes if not (results / f"{run_name(t, m, b, s)}.json").is_file()]
         print(f"# {len(jobs)} runs (finished ones skipped), {args.jobs} workers", flush=True)
         with ProcessPoolExecutor(args.jobs) as pool:
             for job, r in zip(jobs, pool.map(run_one, jobs)):
                 print(f"  {run_name(*job[:4])}: final {r['final_oracle_return']:.2f}, greedy "
                       f"{r['greedy_oracle_return']:.2f}, {r['seconds']:.0f} s", flush=True)
-    print(report(args.tasks, args.budgets))
+    print(report(args.tasks, args.budgets, args.feedback))
 
 
 if __name__ == "__main__":

@@ -790,19 +790,28 @@ def loop_command(
     max_epochs: int = typer.Option(None, min=1, help="epoch limit of each training (default: the task's config)"),
     out: Path = typer.Option(Path("runs/loop"), help="output directory: labels.npz, model_<round>, agent/, loop.json",
                              callback=_output_dir),
+    feedback: str = typer.Option("returns", help="what the oracle gives: returns (one per episode) | preferences "
+                                                 "(a simulated teacher's comparisons, --labels-per-round of them "
+                                                 "a round, each new episode against earlier ones) | both"),
+    beta: float = BETA_OPT, mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
+    skip: float = SKIP_OPT,
 ) -> None:
-    """The reward-model <-> agent loop: each round labels episodes (the oracle), retrains the MIL
-    model on all labels so far (warm start) and lets the agent learn on it; the agent's replay
-    buffer is relabelled with each new model."""
+    """The reward-model <-> agent loop: each round labels episodes (the oracle's returns, or a
+    simulated teacher's comparisons), retrains the MIL model on all labels so far (warm start) and
+    lets the agent learn on it; the agent's replay buffer is relabelled with each new model."""
+    from .datasets.preference_teacher import SimulatedTeacher
     from .mil import CheckpointError
     from .rl.reward_model_loop import check_loop_arguments, run_loop
     from .tasks import check_task
 
     _bad_input(check_task, task)
-    _bad_input(check_loop_arguments, rounds, labels_per_round, episodes)
+    _bad_input(check_loop_arguments, rounds, labels_per_round, episodes, feedback)
+    _teach_check(feedback, None, beta, mistake, equal, gamma, skip)
+    teacher = SimulatedTeacher(beta=beta, mistake=mistake, equal=equal, gamma=gamma, skip=skip)
     try:
         result = run_loop(task, rounds, labels_per_round, episodes=episodes, seed=seed, out=out, oracle=oracle,
-                          members=members, max_epochs=max_epochs, log=typer.echo)
+                          members=members, max_epochs=max_epochs, log=typer.echo, feedback=feedback,
+                          teacher=teacher)
     except (CheckpointError, ValueError) as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(result.summary())

@@ -20,7 +20,8 @@ from nmrm_ros.cli import app, main
 # numeric options checked after parsing, and by what
 CHECKED_ELSEWHERE = {("train", "--lr"): "TrainConfig.check (lr > 0, exit 2)",
                      # any number is a threshold; NaN is refused by SimulatedTeacher.check (exit 2)
-                     ("screen", "--skip"): "SimulatedTeacher.check", ("generate", "--skip"): "SimulatedTeacher.check"}
+                     ("screen", "--skip"): "SimulatedTeacher.check", ("generate", "--skip"): "SimulatedTeacher.check",
+                     ("loop", "--skip"): "SimulatedTeacher.check"}
 
 
 def numeric_options() -> list[tuple[tuple[str, ...], str, type, float | None, float | None]]:

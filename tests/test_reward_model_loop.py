@@ -15,7 +15,9 @@ from nmrm_ros.mil import OnlineRewardModel, load_checkpoint, load_train_config
 from nmrm_ros.mil.online import batched_reference
 from nmrm_ros.mil.pipeline import train_and_evaluate
 from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper, load_rl_config, make_algorithm, make_reward_env
+from nmrm_ros.datasets import TrajectoryDataset
 from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
+from nmrm_ros.rl.reward_model_loop import round_pairs
 from nmrm_ros.tasks import make_env, task_info
 
 D = task_info("key").state_size  # the raw state's part of an observation
@@ -100,7 +102,42 @@ def test_nmrm_loop_runs_rounds_and_writes_what_it_says(tmp_path):
     assert len((out / "agent/curve.csv").read_text().splitlines()) == 7
 
 
+def test_a_rounds_comparisons_each_pair_a_new_episode_with_another():
+    rng = np.random.default_rng(0)
+    first = round_pairs(0, 30, 50, rng)
+    assert first.shape == (50, 2) and (first[:, 0] != first[:, 1]).all() and first.max() < 30
+    pairs = round_pairs(30, 20, 50, rng)
+    new = pairs >= 30
+    assert pairs.shape == (50, 2) and (pairs[:, 0] != pairs[:, 1]).all() and pairs.max() < 50
+    assert new.any(axis=1).all()  # every comparison shows one of the round's new episodes
+    assert set(range(30, 50)) <= set(pairs.ravel().tolist())  # each new episode is compared at least once
+    assert (~new).any() and new[:, 0].any() and new[:, 1].any()  # old episodes too, shown on either side
+
+
+def test_nmrm_loop_learns_from_a_teachers_comparisons(tmp_path):
+    out = tmp_path / "loop"
+    res = subprocess.run([executable("nmrm"), "loop", "--task", "key", "--rounds", "2", "--labels-per-round", "20",
+                          "--episodes", "4", "--members", "2", "--max-epochs", "2", "--feedback", "preferences",
+                          "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "round 1: 20 comparisons of 20 episodes from agent episodes" in res.stdout
+    assert "val pref. acc." in res.stdout
+    summary = json.loads((out / "loop.json").read_text())
+    assert [r["total_labels"] for r in summary["rounds"]] == [20, 40]
+    assert [r["training"]["feedback"] for r in summary["rounds"]] == ["preferences"] * 2
+    assert summary["teacher"]["beta"] == "inf"
+    ds = TrajectoryDataset.load(out / "labels.npz")
+    assert len(ds) == 40 and ds.preferences.shape == (40, 3)
+    assert (ds.preferences[:20, :2] < 20).all() and (ds.preferences[20:, :2] >= 20).any(axis=1).all()
+    better = np.where(ds.preferences[:, 2] == 1, ds.preferences[:, 0], ds.preferences[:, 1]).astype(int)
+    worse = np.where(ds.preferences[:, 2] == 1, ds.preferences[:, 1], ds.preferences[:, 0]).astype(int)
+    decided = ds.preferences[:, 2] != 0.5
+    assert (ds.returns[better] >= ds.returns[worse])[decided].all()  # a perfect teacher
+
+
 @pytest.mark.parametrize("args,message", [
+    ("--feedback votes", "feedback must be one of returns, preferences, both"),
+    ("--feedback preferences --beta 0", "beta"),
     ("--rounds 0", "--rounds"),
     ("--labels-per-round 5", "--labels-per-round"),
     ("--rounds 5 --episodes 3", "3 agent episodes cannot be split over 5 rounds"),

@@ -22,6 +22,15 @@ keep its size across rounds (the same architecture and hidden size: the task's c
 With `rounds=1` it is the offline baseline: one screened random dataset of `labels_per_round`
 labels, one model, one agent.
 
+`feedback="preferences"` (or `"both"`): a simulated teacher (`SimulatedTeacher`, B-Pref's knobs)
+compares instead of labelling returns. Each round still collects `labels_per_round` episodes and
+asks `labels_per_round` comparisons: round 0 pairs the screened episodes with each other; round k
+pairs each new episode in turn with an episode drawn uniformly from all collected so far (old or
+new), so the comparisons reach the returns the agent now earns: a model of comparisons fixes the
+order of the returns it has seen compared, and only that (docs/guide/preferences.md, "Agents on a
+model of comparisons"). The models train on all comparisons so far (`retrain(feedback=...)`); the
+episodes' true returns stay in labels.npz as ground truth (used for training only with `both`).
+
 Output in `out/`: labels.npz (every label, in order; round r's are rows [r N, (r + 1) N)),
 model_r.{pt,json} per round, agent/ (policy.zip, curve.csv, agent.json as `nmrm rl train`'s) and
 loop.json (per round: labels, training summary, the agent's episodes and their mean oracle return;
@@ -41,6 +50,7 @@ from .training import EpisodeCurveCallback
 
 #: episode seeds of the agent's labelled episodes: well away from its training episodes' (seed + e)
 LABEL_SEED_OFFSET = 10**7
+FEEDBACK = ("returns", "preferences", "both")
 
 
 @dataclass
@@ -48,8 +58,8 @@ class Round:
     """One round: its labels, its model, the agent episodes it served."""
 
     index: int
-    labels: int            # labels collected this round
-    total_labels: int      # labels the model was trained on
+    labels: int            # labels collected this round (feedback preferences: comparisons answered)
+    total_labels: int      # labels the model was trained on (comparisons, for preferences)
     source: str            # "screened random episodes" or "agent episodes"
     checkpoint: str
     training: dict         # nmrm_ros.mil.retrain summary
@@ -68,13 +78,16 @@ class LoopResult:
     greedy_oracle_return: float = float("nan")  # greedy policy on 50 new episodes
     seconds: float = 0.0
     out: str = ""
+    feedback: str = "returns"
 
     def summary(self) -> str:
-        lines = [f"{'round':>5s} {'labels':>7s} {'from':>26s} {'val return MSE':>15s} "
+        prefs = self.feedback == "preferences"
+        lines = [f"{'round':>5s} {'labels':>7s} {'from':>26s} "
+                 f"{'val pref. acc.' if prefs else 'val return MSE':>15s} "
                  f"{'agent episodes':>15s} {'oracle return':>14s}"]
         for r in self.rounds:
             lines.append(f"{r.index:5d} {r.total_labels:7d} {r.source:>26s} "
-                         f"{r.training.get('val_return_mse', float('nan')):15.4f} "
+                         f"{r.training.get('val_preference_accuracy' if prefs else 'val_return_mse', float('nan')):15.4f} "
                          f"{f'{r.first_episode}-{r.last_episode - 1}':>15s} {r.mean_oracle_return:14.3f}")
         lines.append(f"final oracle return (last 50 episodes) {self.final_oracle_return:.3f}; greedy policy "
                      f"on 50 new episodes {self.greedy_oracle_return:.3f}; {self.seconds:.0f} s")
@@ -144,8 +157,27 @@ def find_reward_wrapper(env):
     return env
 
 
-def check_loop_arguments(rounds: int, labels_per_round: int, episodes: int | None) -> None:
+def round_pairs(n_old: int, n_new: int, count: int, rng: np.random.Generator) -> np.ndarray:
+    """(count, 2) pairs of episode indices for a round that added episodes [n_old, n_old + n_new)
+    to n_old earlier ones: new episode n_old + i % n_new against one drawn uniformly from all the
+    others (either may be shown first). With n_old = 0: distinct pairs of the new episodes."""
+    from ..datasets.preference_teacher import draw_pairs
+
+    if n_old == 0:
+        return draw_pairs(n_new, count, int(rng.integers(2**31)))
+    total = n_old + n_new
+    a = n_old + np.arange(count) % n_new
+    b = rng.integers(0, total - 1, size=count)
+    b = b + (b >= a)  # anyone but a itself
+    swap = rng.random(count) < 0.5
+    return np.column_stack([np.where(swap, b, a), np.where(swap, a, b)]).astype(np.int64)
+
+
+def check_loop_arguments(rounds: int, labels_per_round: int, episodes: int | None,
+                         feedback: str = "returns") -> None:
     """ValueError (one line) for a loop that cannot run."""
+    if feedback not in FEEDBACK:
+        raise ValueError(f"feedback must be one of {', '.join(FEEDBACK)}, got {feedback!r}")
     if rounds < 1:
         raise ValueError(f"rounds must be at least 1, got {rounds}")
     if labels_per_round < 10:
@@ -157,15 +189,17 @@ def check_loop_arguments(rounds: int, labels_per_round: int, episodes: int | Non
 def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None = None, seed: int = 0,
              out: str | Path = "runs/loop", oracle: str = "", architecture: str = "csc_lstm",
              members: int | None = None, max_epochs: int | None = None, progress: bool = False,
-             log=print) -> LoopResult:
+             log=print, feedback: str = "returns", teacher=None) -> LoopResult:
     """Run the loop (module docstring) and write its files to `out`.
 
     episodes: the agent's training episodes (default config/rl.yaml's); seed: the agent's and
     the episodes' seed, the data seed of round 0 and the models' weight seed; oracle: a user's
     oracle function that labels and judges (default the task's); members, max_epochs: of each
-    model (default the task's training config, config/mil_training.yaml).
+    model (default the task's training config, config/mil_training.yaml); feedback: returns |
+    preferences | both; teacher: the `SimulatedTeacher` that compares (default: a perfect one).
     """
     from ..datasets import generate_screened
+    from ..datasets.preference_teacher import SimulatedTeacher
     from ..datasets.return_screening import label_rollouts
     from ..datasets.trajectories import concatenate
     from ..mil.retrain import retrain
@@ -176,7 +210,8 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     from .training import train_agent
     from .wrappers import make_reward_env
 
-    check_loop_arguments(rounds, labels_per_round, episodes)
+    check_loop_arguments(rounds, labels_per_round, episodes, feedback)
+    teacher = (teacher or SimulatedTeacher()).check() if feedback != "returns" else None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -185,22 +220,35 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     episodes = int(load_rl_config(algorithm_name(task), task=task, episodes=episodes)["episodes"])
     check_loop_arguments(rounds, labels_per_round, episodes)
     judge = make_oracle(task, oracle)
-    result = LoopResult(task, out=str(out))
+    result = LoopResult(task, out=str(out), feedback=feedback)
     labels = []
+    comparisons = []  # each round's answered comparisons (m, 3), indexed into the concatenated episodes
 
     def train_model(k: int, part, source: str) -> str:
         start = time.perf_counter()
         labels.append(part)
         ds = concatenate(labels)
+        asked = len(part)
+        if teacher is not None:
+            pairs = round_pairs(len(ds) - len(part), len(part), labels_per_round,
+                                np.random.default_rng([seed, k, 0x100F]))
+            comparisons.append(teacher.answer(ds, pairs, seed + k))
+            ds.preferences = np.concatenate(comparisons)
+            ds.meta["preferences"] = {"teacher": teacher.to_dict(), "seed": seed}
+            asked = len(comparisons[-1])
         ds.save(out / "labels.npz")
         init = str(out / f"model_{k - 1}") if k else None
         summary = retrain(ds, out / f"model_{k}", architecture, members, max_epochs, seed=seed, init=init,
-                          bootstrap=False)
-        rnd = Round(k, len(part), len(ds), source, summary["checkpoint"], summary,
+                          bootstrap=False, feedback=feedback)
+        total = len(ds.preferences) if feedback == "preferences" else len(ds)
+        rnd = Round(k, asked, total, source, summary["checkpoint"], summary,
                     label_mean_return=float(np.mean(part.returns)), seconds=time.perf_counter() - start)
         result.rounds.append(rnd)
-        log(f"round {k}: {len(part)} labels from {source} (mean return {rnd.label_mean_return:.3f}), "
-            f"model {k} on {len(ds)}: validation return MSE {summary['val_return_mse']:.4f} "
+        what = f"{asked} labels" if teacher is None else f"{asked} comparisons of {len(part)} episodes"
+        score = (f"validation preference accuracy {summary['val_preference_accuracy']:.4f}"
+                 if feedback == "preferences" else f"validation return MSE {summary['val_return_mse']:.4f}")
+        log(f"round {k}: {what} from {source} (mean return {rnd.label_mean_return:.3f}), "
+            f"model {k} on {total}: {score} "
             f"({summary['epochs_run']} epochs, {summary['start'].split(':')[0]}, {summary['seconds']:.0f} s)")
         write()
         return summary["checkpoint"]
@@ -218,7 +266,8 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
         (out / "loop.json").write_text(json.dumps({**asdict(result), "labels_per_round": labels_per_round,
                                                    "rounds_planned": rounds, "episodes": episodes,
                                                    "seed": seed, "oracle": oracle,
-                                                   "architecture": architecture, "members": members},
+                                                   "architecture": architecture, "members": members,
+                                                   "teacher": teacher.to_dict() if teacher else None},
                                                   indent=1, default=str))
 
     first = generate_screened(task, labels_per_round, seed=seed, oracle=oracle)
