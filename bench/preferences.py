@@ -16,7 +16,7 @@ reference. Scored on 2000 held-out screened episodes of data seed 999: preferenc
 all pairs with different true returns, and Pearson's r of the predicted and the oracle's per-step
 rewards. Each cell: mean [worst] over seeds.
 
-RL (`--rl`): double DQN through the wrapper (config/rl.yaml, 400 episodes, agent seed r) on the
+RL (`--rl`; `--rl --report` only redraws rl.txt from the agents kept): double DQN through the wrapper (config/rl.yaml, 400 episodes, agent seed r) on the
 CSC models of (perfect, 4000 comparisons) and of (returns, 4000 labels), seed r each, judged by
 the oracle: final oracle return = mean of the last 50 episodes. The models are the runs above
 (their checkpoints are kept in runs/preferences/<tag>/models/; a run without one is trained again).
@@ -133,6 +133,24 @@ def agent(job: tuple) -> dict:
             "episodes": len(returns), "seconds": seconds}
 
 
+def kept_agents(out: Path) -> list:
+    """Every agent kept in out/agents whose name is a --rl run (task, returns|perfect, seed), as agent()
+    returns it: the table covers all seeds measured so far, whichever sitting ran them."""
+    import csv
+    import re
+
+    found = []
+    for curve in sorted((out / "agents").glob("*/curve.csv")):
+        m = re.fullmatch(rf"(\w+?)_csc_lstm_(returns|perfect)_n{RL_N}_s(\d+)", curve.parent.name)
+        if not m:
+            continue
+        with open(curve) as f:
+            returns = [float(row["oracle_return"]) for row in csv.DictReader(f)]
+        found.append({"task": m[1], "teacher": m[2], "seed": int(m[3]),
+                      "final": float(np.mean(returns[-FINAL_WINDOW:])), "episodes": len(returns)})
+    return found
+
+
 def rl_report(out: Path, results: list) -> str:
     lines = [f"# {out.relative_to(ROOT)}/agents: double DQN through the wrapper (config/rl.yaml) on the CSC model "
              f"trained from {RL_N} comparisons of a perfect teacher vs from {RL_N} return labels; final oracle "
@@ -240,13 +258,18 @@ def main() -> None:
         overrides = parse_overrides(args.set)
         jobs = [(t, k, r, overrides, out, args.episodes) for r in args.seeds for t in args.tasks
                 for k in ("returns", "perfect")]
-        print(f"# {len(jobs)} agents (finished ones reused)", flush=True)
-        with ProcessPoolExecutor(args.jobs) as pool:
-            results = list(pool.map(agent, jobs))
-        text = rl_report(out, results)
+        print(f"# {len(jobs)} agents (finished ones reused)" if not args.report else "# the agents kept so far",
+              flush=True)
+        if not args.report:
+            with ProcessPoolExecutor(args.jobs) as pool:
+                list(pool.map(agent, jobs))
+        kept = kept_agents(out)
+        text = rl_report(out, kept)
         print(text)
-        (out / "rl.txt").write_text(text + f"\n# command: bench/preferences.py --rl --tasks {' '.join(args.tasks)} "
-                                    f"--seeds {' '.join(map(str, args.seeds))} --episodes {args.episodes}\n")
+        seeds = " ".join(map(str, sorted({x["seed"] for x in kept})))
+        (out / "rl.txt").write_text(text + f"\n# command: .venv/bin/python bench/preferences.py --rl --tasks "
+                                    f"{' '.join(args.tasks)} --seeds {seeds} --episodes {args.episodes} (a task's "
+                                    f"row: the seeds it has so far; `--rl --report` redraws)\n")
         return
     if not args.report:
         overrides = parse_overrides(args.set)
