@@ -82,7 +82,7 @@ class LoopResult:
 
     def summary(self) -> str:
         prefs = self.feedback == "preferences"
-        lines = [f"{'round':>5s} {'labels':>7s} {'from':>26s} "
+        lines = [f"{'round':>5s} {'pairs' if prefs else 'labels':>7s} {'from':>26s} "
                  f"{'val pref. acc.' if prefs else 'val return MSE':>15s} "
                  f"{'agent episodes':>15s} {'oracle return':>14s}"]
         for r in self.rounds:
