@@ -71,6 +71,9 @@ def training_data(task: str, teacher: str, n: int, r: int):
 def run(job: tuple) -> dict:
     """Train and score one run; writes and returns its result."""
     task, arch, teacher, n, r, overrides, out = job
+    done = out / f"{run_name(task, arch, teacher, n, r)}.json"
+    if done.is_file():  # finished meanwhile, by another sitting or by --rl
+        return json.loads(done.read_text())
     import torch
 
     torch.set_num_threads(1)
