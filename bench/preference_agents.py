@@ -27,8 +27,6 @@ from __future__ import annotations
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import csv
-import hashlib
-import json
 import sys
 from pathlib import Path
 
@@ -85,23 +83,16 @@ def greedy_episodes(agent_dir: Path, checkpoint: Path, task: str) -> tuple[np.nd
 
 
 def mapped_checkpoint(src: Path, dst: Path, a: float, b: float) -> Path:
-    """A copy of the CSC checkpoint `src` whose per-step rewards are (r' - b) / a."""
-    from nmrm_ros.mil.checkpoint import checkpoint_paths
+    """A copy of the CSC checkpoint `src` whose per-step rewards are (r' - b) / a (every member)."""
+    from nmrm_ros.mil import load_checkpoint, save_checkpoint
+    from nmrm_ros.mil.calibration import Calibration, calibrate
 
-    weights, info = checkpoint_paths(src)
-    new_weights, new_info = checkpoint_paths(dst)
-    state = torch.load(weights)
-    last = sorted(k for k in state if k.startswith("params.head__") and k.endswith("__weight"))[-1]
-    bias = last.replace("__weight", "__bias")
-    state[last] = state[last] / a
-    state[bias] = (state[bias] - b) / a
-    new_weights.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(state, new_weights)
-    meta = json.loads(info.read_text())
-    meta["weights_sha256"] = hashlib.sha256(new_weights.read_bytes()).hexdigest()
-    meta["mapped"] = {"from": str(src), "a": a, "b": b, "rewards": "(r - b) / a"}
-    new_info.write_text(json.dumps(meta, indent=1))
-    return new_weights
+    model, meta = load_checkpoint(src)
+    fit = Calibration(gain=np.full(model.members, a), bias=np.full(model.members, b), labels=0)
+    keep = {k: v for k, v in meta.items() if k not in ("format", "package_version", "weights_sha256", "task",
+                                                       "model", "normalisation")}
+    return save_checkpoint(calibrate(model, fit), dst, task=meta["task"], **keep,
+                           mapped={"from": str(src), "a": a, "b": b, "rewards": "(r - b) / a"})
 
 
 def final_return(curve: Path) -> float:

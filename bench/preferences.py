@@ -20,6 +20,8 @@ RL (`--rl`; `--rl --report` only redraws rl.txt from the agents kept): double DQ
 CSC models of (perfect, 4000 comparisons) and of (returns, 4000 labels), seed r each, judged by
 the oracle: final oracle return = mean of the last 50 episodes. The models are the runs above
 (their checkpoints are kept in runs/preferences/<tag>/models/; a run without one is trained again).
+A third agent learns on the model of comparisons calibrated to return units (`nmrm calibrate`:
+nmrm_ros.mil.calibration) with CAL_LABELS return labels of its own training data (a subset of seed r).
 
 Resumes: each run is bench/results/preferences/<tag>/<task>_<arch>_<teacher>_n<n>_s<r>.json, each
 agent's curve bench/results/preferences/<tag>/agents/<name>/curve.csv; what exists is not run again.
@@ -50,6 +52,8 @@ PAIRS = (250, 500, 1000, 2000, 4000)
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 MODELS = ROOT / "runs" / "preferences"  # checkpoints of the runs (not in git)
 RL_N, FINAL_WINDOW = 4000, 50
+CAL_LABELS = 50  # return labels that calibrate the model of comparisons for the third agent
+RL_TEACHERS = ("returns", "perfect", "calibrated")
 
 
 def run_name(task: str, arch: str, teacher: str, n: int, r: int) -> str:
@@ -114,13 +118,16 @@ def agent(job: tuple) -> dict:
     torch.set_num_threads(1)
     from nmrm_ros.rl import train_agent
 
-    name = run_name(task, "csc_lstm", teacher, RL_N, r)
+    base = run_name(task, "csc_lstm", "perfect" if teacher == "calibrated" else teacher, RL_N, r)
+    name = base + (f"_cal{CAL_LABELS}" if teacher == "calibrated" else "")
     checkpoint = MODELS / out.name / "models" / f"{name}.pt"
     agent_dir = out / "agents" / name
     curve = agent_dir / "curve.csv"
     if not curve.is_file():
-        if not checkpoint.is_file():
-            run((task, "csc_lstm", teacher, RL_N, r, overrides, out))
+        if not (MODELS / out.name / "models" / f"{base}.pt").is_file():
+            run((task, "csc_lstm", "perfect" if teacher == "calibrated" else teacher, RL_N, r, overrides, out))
+        if teacher == "calibrated" and not checkpoint.is_file():
+            calibrated_model(MODELS / out.name / "models" / base, checkpoint, task, r)
         t0 = time.perf_counter()
         train_agent(task, "model", checkpoint=checkpoint, episodes=episodes, seed=r,
                     out=MODELS / out.name / "agents" / name, progress=False)
@@ -136,6 +143,21 @@ def agent(job: tuple) -> dict:
             "episodes": len(returns), "seconds": seconds}
 
 
+def calibrated_model(src: Path, dst: Path, task: str, r: int) -> None:
+    """Write the model `src` calibrated on CAL_LABELS return labels of its training data (seed r)."""
+    from nmrm_ros.mil import load_checkpoint, save_checkpoint
+    from nmrm_ros.mil.calibration import calibrate, fit_calibration
+
+    model, meta = load_checkpoint(src)
+    ds = load_dataset(task, 5000, r)
+    pick = np.sort(np.random.default_rng([r, 0xCA1]).choice(len(ds), CAL_LABELS, replace=False))
+    fit = fit_calibration(model, ds.subset(pick))
+    keep = {k: v for k, v in meta.items() if k not in ("format", "package_version", "weights_sha256", "task",
+                                                       "model", "normalisation")}
+    save_checkpoint(calibrate(model, fit), dst, task=task,
+                    **keep, calibration={**fit.to_dict(), "from": str(src), "data": f"screened:{task}:seed={r}"})
+
+
 def kept_agents(out: Path) -> list:
     """Every agent kept in out/agents whose name is a --rl run (task, returns|perfect, seed), as agent()
     returns it: the table covers all seeds measured so far, whichever sitting ran them."""
@@ -144,12 +166,12 @@ def kept_agents(out: Path) -> list:
 
     found = []
     for curve in sorted((out / "agents").glob("*/curve.csv")):
-        m = re.fullmatch(rf"(\w+?)_csc_lstm_(returns|perfect)_n{RL_N}_s(\d+)", curve.parent.name)
+        m = re.fullmatch(rf"(\w+?)_csc_lstm_(returns|perfect)_n{RL_N}_s(\d+)(_cal{CAL_LABELS})?", curve.parent.name)
         if not m:
             continue
         with open(curve) as f:
             returns = [float(row["oracle_return"]) for row in csv.DictReader(f)]
-        found.append({"task": m[1], "teacher": m[2], "seed": int(m[3]),
+        found.append({"task": m[1], "teacher": "calibrated" if m[4] else m[2], "seed": int(m[3]),
                       "final": float(np.mean(returns[-FINAL_WINDOW:])), "episodes": len(returns)})
     return found
 
@@ -157,17 +179,25 @@ def kept_agents(out: Path) -> list:
 def rl_report(out: Path, results: list) -> str:
     lines = [f"# {out.relative_to(ROOT)}/agents: double DQN through the wrapper (config/rl.yaml) on the CSC model "
              f"trained from {RL_N} comparisons of a perfect teacher vs from {RL_N} return labels; final oracle "
-             f"return = mean of the last {FINAL_WINDOW} episodes; mean [worst] over seeds",
-             f"{'task':8s} {'from returns':>18s} {'from comparisons':>18s} {'ratio':>6s} seeds"]
+             f"return = mean of the last {FINAL_WINDOW} episodes; mean [worst] over seeds (ratio: of the means); "
+             f"calibrated: the model of comparisons calibrated on {CAL_LABELS} return labels (`nmrm calibrate`)",
+             f"{'task':8s} {'from returns':>18s} {'from comparisons':>18s} {'ratio':>6s} {'calibrated':>18s} "
+             f"{'ratio':>6s} seeds"]
+
+    def mean_worst(values: list) -> str:
+        return f"{np.mean(values):8.2f} [{min(values):6.2f}]" if values else f"{'–':>18s}"
+
+    def ratio(values: list, reference: list) -> str:
+        return f"{np.mean(values) / np.mean(reference):6.0%}" if values and np.mean(reference) > 0 else f"{'–':>6s}"
+
     for task in TASKS:
-        cell = {k: [x["final"] for x in results if x["task"] == task and x["teacher"] == k]
-                for k in ("returns", "perfect")}
+        cell = {k: [x["final"] for x in results if x["task"] == task and x["teacher"] == k] for k in RL_TEACHERS}
         if not cell["returns"] or not cell["perfect"]:
             continue
-        ratio = np.mean(cell["perfect"]) / np.mean(cell["returns"]) if np.mean(cell["returns"]) > 0 else float("nan")
         seeds = sorted({x["seed"] for x in results if x["task"] == task})
-        lines.append(f"{task:8s} {np.mean(cell['returns']):8.2f} [{min(cell['returns']):6.2f}] "
-                     f"{np.mean(cell['perfect']):8.2f} [{min(cell['perfect']):6.2f}] {ratio:6.0%} {seeds}")
+        lines.append(f"{task:8s} {mean_worst(cell['returns'])} {mean_worst(cell['perfect'])} "
+                     f"{ratio(cell['perfect'], cell['returns'])} {mean_worst(cell['calibrated'])} "
+                     f"{ratio(cell['calibrated'], cell['returns'])} {seeds}")
     return "\n".join(lines)
 
 
@@ -260,7 +290,7 @@ def main() -> None:
     if args.rl:
         overrides = parse_overrides(args.set)
         jobs = [(t, k, r, overrides, out, args.episodes) for r in args.seeds for t in args.tasks
-                for k in ("returns", "perfect")]
+                for k in RL_TEACHERS]
         print(f"# {len(jobs)} agents (finished ones reused)" if not args.report else "# the agents kept so far",
               flush=True)
         if not args.report:

@@ -651,6 +651,61 @@ def evaluate(
 
 
 @app.command()
+def calibrate(
+    checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem), e.g. a model of comparisons"),
+    out: Path = typer.Option(..., help="checkpoint path of the calibrated model (writes OUT.pt and OUT.json)",
+                             callback=_output_file),
+    data: Path = typer.Option(None, help="dataset .npz whose return-labelled episodes calibrate"),
+    bag: list[Path] = typer.Option(None, help="bag(s) whose return labels calibrate (repeatable)"),
+    labeller: str = typer.Option(None, help="with --bag: whose labels to use if several labelled"),
+    labels: int = typer.Option(None, min=2, help="use this many return-labelled episodes (a seeded subset; "
+                               "default all)"),
+    seed: int = typer.Option(0, min=0, help="seed of the --labels subset"),
+) -> None:
+    """Give a model of comparisons the units of returns: fit each member's predicted returns to a few
+    return labels (R' = gain R + bias L) and write a copy whose rewards are (r' - bias) / gain."""
+    import numpy as np
+
+    from .mil import CheckpointError, evaluate as evaluate_model, load_checkpoint, save_checkpoint
+    from .mil.calibration import CalibrationError, calibrate as calibrate_model, check_calibratable, fit_calibration
+    from .mil.checkpoint import checkpoint_paths
+
+    if (data is None) == (not bag):
+        raise typer.BadParameter("give the return labels as --data FILE or --bag BAG (one of them)")
+    if checkpoint_paths(out)[0].resolve() == checkpoint_paths(checkpoint)[0].resolve():
+        raise typer.BadParameter(f"--out {out} is the checkpoint itself: give another path (nothing is overwritten)")
+    try:
+        model, meta = load_checkpoint(checkpoint)
+    except CheckpointError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    _bad_input(check_calibratable, model)
+    ds, source = _load_bags(bag, meta.get("task"), labeller) if bag else _load_or_generate(data, None, 0, 0)
+    if ds.state_size != model.config.input_size:
+        raise typer.BadParameter(f"dataset states have size {ds.state_size}, the model takes {model.config.input_size}")
+    labelled = np.flatnonzero(np.isfinite(ds.returns))
+    if labels is not None:
+        if labels > len(labelled):
+            raise typer.BadParameter(f"--labels {labels}: the data has {len(labelled)} return-labelled episodes")
+        labelled = np.sort(np.random.default_rng(seed).choice(labelled, labels, replace=False))
+    ds = ds.subset(labelled)
+    try:
+        fit = fit_calibration(model, ds)
+    except CalibrationError as exc:
+        raise typer.BadParameter(str(exc)) from None
+    calibrated = calibrate_model(model, fit)
+    before, after = evaluate_model(model, ds), evaluate_model(calibrated, ds)
+    m = int(model.serving_member)
+    typer.echo(f"calibrated on {fit.labels} return labels ({source}): serving member's rewards were "
+               f"{fit.gain[m]:.4g} r {fit.bias[m]:+.4g} per step; return MSE on them {before['return_mse']:.4f} -> "
+               f"{after['return_mse']:.4f}")
+    keep = {k: v for k, v in meta.items() if k not in ("format", "package_version", "weights_sha256", "task",
+                                                       "model", "normalisation")}
+    keep["calibration"] = {**fit.to_dict(), "from": str(checkpoint_paths(checkpoint)[0]), "data": source}
+    path = save_checkpoint(calibrated, out, task=meta.get("task"), **keep)
+    typer.echo(f"wrote {path}")
+
+
+@app.command()
 def explain(
     checkpoint: Path = typer.Option(..., help="checkpoint path (.pt or .json or the stem)"),
     out: Path = typer.Option(Path("runs/explain"), help="directory for the PNGs and index.html",

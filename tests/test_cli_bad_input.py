@@ -45,6 +45,9 @@ ROOT = Path(__file__).resolve().parents[1]
     ("dataset screen --task key --n 50 --feedback preferences --pairs 0", "--pairs"),
     ("train --task key --n 50 --feedback stars", "feedback must be returns or preferences or both"),
     ("train --task key --n 50 --feedback preferences --out {tmp}/m", "needs preferences"),
+    ("calibrate --checkpoint {tmp}/missing --data {tmp}/file --out {tmp}/m", "checkpoint file missing"),
+    ("calibrate --checkpoint {tmp}/missing --data {tmp}/file --labels 1 --out {tmp}/m", "--labels"),
+    ("calibrate --checkpoint {tmp}/missing --data {tmp}/file --out {tmp}/file/m", "cannot write to"),
 ])
 def test_a_wrong_invocation_is_a_one_line_error(tmp_path, args, message):
     (tmp_path / "file").write_text("not a directory")
