@@ -76,8 +76,8 @@ def run(job: tuple) -> dict:
     """Train and score one run; writes and returns its result."""
     task, arch, teacher, n, r, overrides, out = job
     done = out / f"{run_name(task, arch, teacher, n, r)}.json"
-    if done.is_file():  # finished meanwhile, by another sitting or by --rl
-        return json.loads(done.read_text())
+    if done.is_file() and (MODELS / out.name / "models" / f"{done.stem}.pt").is_file():
+        return json.loads(done.read_text())  # finished meanwhile, by another process (--rl needs the model too)
     import torch
 
     torch.set_num_threads(1)
