@@ -283,7 +283,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true", help="train nothing: print the table and plot")
     parser.add_argument("--rl", action="store_true", help="train agents on the models of 4000 comparisons "
-                                                         "and of 4000 return labels (see above)")
+                                                         "(as trained, and calibrated on 50 return labels) and of "
+                                                         "4000 return labels (see above)")
     parser.add_argument("--episodes", type=int, default=400, help="--rl: episodes per agent")
     args = parser.parse_args()
     out = RESULTS / args.tag
