@@ -86,11 +86,11 @@ def mapped_checkpoint(src: Path, dst: Path, a: float, b: float) -> Path:
     """A copy of the CSC checkpoint `src` whose per-step rewards are (r' - b) / a (every member)."""
     from nmrm_ros.mil import load_checkpoint, save_checkpoint
     from nmrm_ros.mil.calibration import Calibration, calibrate
+    from nmrm_ros.mil.checkpoint import caller_meta
 
     model, meta = load_checkpoint(src)
     fit = Calibration(gain=np.full(model.members, a), bias=np.full(model.members, b), labels=0)
-    keep = {k: v for k, v in meta.items() if k not in ("format", "package_version", "weights_sha256", "task",
-                                                       "model", "normalisation")}
+    keep = caller_meta(meta)
     return save_checkpoint(calibrate(model, fit), dst, task=meta["task"], **keep,
                            mapped={"from": str(src), "a": a, "b": b, "rewards": "(r - b) / a"})
 

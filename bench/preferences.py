@@ -147,13 +147,13 @@ def calibrated_model(src: Path, dst: Path, task: str, r: int) -> None:
     """Write the model `src` calibrated on CAL_LABELS return labels of its training data (seed r)."""
     from nmrm_ros.mil import load_checkpoint, save_checkpoint
     from nmrm_ros.mil.calibration import calibrate, fit_calibration
+    from nmrm_ros.mil.checkpoint import caller_meta
 
     model, meta = load_checkpoint(src)
     ds = load_dataset(task, 5000, r)
     pick = np.sort(np.random.default_rng([r, 0xCA1]).choice(len(ds), CAL_LABELS, replace=False))
     fit = fit_calibration(model, ds.subset(pick))
-    keep = {k: v for k, v in meta.items() if k not in ("format", "package_version", "weights_sha256", "task",
-                                                       "model", "normalisation")}
+    keep = caller_meta(meta)
     save_checkpoint(calibrate(model, fit), dst, task=task,
                     **keep, calibration={**fit.to_dict(), "from": str(src), "data": f"screened:{task}:seed={r}"})
 

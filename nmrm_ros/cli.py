@@ -668,7 +668,7 @@ def calibrate(
 
     from .mil import CheckpointError, evaluate as evaluate_model, load_checkpoint, save_checkpoint
     from .mil.calibration import CalibrationError, calibrate as calibrate_model, check_calibratable, fit_calibration
-    from .mil.checkpoint import checkpoint_paths
+    from .mil.checkpoint import caller_meta, checkpoint_paths
 
     if (data is None) == (not bag):
         raise typer.BadParameter("give the return labels as --data FILE or --bag BAG (one of them)")
@@ -698,8 +698,7 @@ def calibrate(
     typer.echo(f"calibrated on {fit.labels} return labels ({source}): serving member's rewards were "
                f"{fit.gain[m]:.4g} r {fit.bias[m]:+.4g} per step; return MSE on them {before['return_mse']:.4f} -> "
                f"{after['return_mse']:.4f}")
-    keep = {k: v for k, v in meta.items() if k not in ("format", "package_version", "weights_sha256", "task",
-                                                       "model", "normalisation")}
+    keep = caller_meta(meta)
     keep["calibration"] = {**fit.to_dict(), "from": str(checkpoint_paths(checkpoint)[0]), "data": source}
     path = save_checkpoint(calibrated, out, task=meta.get("task"), **keep)
     typer.echo(f"wrote {path}")

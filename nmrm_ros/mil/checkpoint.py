@@ -69,6 +69,16 @@ def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task:
     return weights
 
 
+#: metadata entries save_checkpoint writes itself (from the model), not from its caller
+WRITTEN_BY_SAVE = ("format", "package_version", "weights_sha256", "task", "model", "normalisation")
+
+
+def caller_meta(meta: dict) -> dict:
+    """A loaded checkpoint's metadata without what save_checkpoint derives from the model: what to
+    pass again when saving a modified copy (`save_checkpoint(copy, path, task=meta["task"], **caller_meta(meta))`)."""
+    return {k: v for k, v in meta.items() if k not in WRITTEN_BY_SAVE}
+
+
 def _normalisation(model) -> dict:
     """The normalisation held in the weights (model buffers), as the .json records it."""
     return {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
