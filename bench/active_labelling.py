@@ -15,6 +15,8 @@ ensemble mean.
     .venv/bin/python bench/active_labelling.py ... --screener-order --out bench/results/active_labelling_screener_order
     .venv/bin/python bench/active_labelling.py --feedback preferences --labels 300 --batch 20 --pool 600
 Writes bench/results/active_labelling.{json,txt,png} (--feedback preferences: active_preferences.*).
+Resumes: the JSON is rewritten after every (arm, seed); a run with the same settings skips the
+(arm, seed) pairs it already holds (other seeds may be added later).
 
 With `--feedback preferences` the person compares instead: it takes the first pair the page
 offers (`/api/pairs`; active arm: the pairs whose P(left better) the members disagree on most,
@@ -128,6 +130,43 @@ def run_arm(arm: str, seed: int, pool_bag: Path, returns: dict, work: Path, args
     return versions
 
 
+#: the settings two sittings must share to be one result (the seeds may differ)
+SETTINGS = ("labels", "batch", "pool", "test", "members", "max_epochs", "screener_order", "feedback", "pair_window")
+
+
+def resumed_rows(args) -> tuple[list, dict]:
+    """The rows and per-(arm, seed) seconds already in args.out's JSON, if its settings are args'.
+
+    An (arm, seed) counts only when all its versions are there. A JSON of other settings is an
+    error (one line), not overwritten: pass another --out.
+    """
+    path = args.out.with_suffix(".json")
+    if not path.exists():
+        return [], {}
+    saved = json.loads(path.read_text())
+    differ = [k for k in SETTINGS if saved["args"].get(k) != str(getattr(args, k))]
+    if differ:
+        sys.exit(f"error: {path} holds a run with other settings ({', '.join(differ)}); pass another --out")
+    rows = saved["rows"]
+    arm_seconds = saved.get("arm_seconds")
+    if arm_seconds is None:  # a file of one sitting, before resuming existed: its wall time spread evenly
+        pairs = sorted({f"{r['arm']}_{r['seed']}" for r in rows})
+        arm_seconds = {k: saved["wall_seconds"] / len(pairs) for k in pairs}
+    versions = args.labels // args.batch
+    done = {k for k in arm_seconds
+            if sum(1 for r in rows if f"{r['arm']}_{r['seed']}" == k) == versions}
+    print(f"# resuming {path}: {sorted(done)} done", flush=True)
+    return [r for r in rows if f"{r['arm']}_{r['seed']}" in done], {k: arm_seconds[k] for k in done}
+
+
+def write_json(args, rows: list, arm_seconds: dict) -> None:
+    """args.out's JSON: settings, rows and per-(arm, seed) seconds (written after every arm)."""
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(
+        {"args": {k: str(v) for k, v in vars(args).items()}, "rows": rows, "arm_seconds": arm_seconds,
+         "wall_seconds": sum(arm_seconds.values())}, indent=1))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -151,19 +190,24 @@ def main() -> int:
     from nmrm_ros.datasets import generate_screened
     from nmrm_ros.mil import evaluate, load_checkpoint
 
+    rows, arm_seconds = resumed_rows(args)
     start = time.monotonic()
     pool = generate_screened("key", args.pool, seed=1)
     test = generate_screened("key", args.test, seed=2)
     work = Path(tempfile.mkdtemp(prefix="active_labelling_"))
-    rows = []
     for seed in args.seeds:
+        todo = [arm for arm in ("oldest", "active") if f"{arm}_{seed}" not in arm_seconds]
+        if not todo:
+            print(f"  seed {seed}: both arms already in {args.out.with_suffix('.json')}, skipped", flush=True)
+            continue
         # the screener fills its classes in turn (key-then-treasure episodes come last), so the
         # pool is played in a seeded random order: "oldest first" is then a uniform sample
         order = np.arange(len(pool)) if args.screener_order else np.random.default_rng(seed).permutation(len(pool))
         shuffled = pool.subset(order)
         pool_bag = write_dataset_bag(shuffled, work / f"pool_{seed}", include_oracle=False)
         returns = {e: float(shuffled.returns[e]) for e in range(len(shuffled))}
-        for arm in ("oldest", "active"):
+        for arm in todo:
+            arm_start = time.monotonic()
             for labels, ckpt, seconds in run_arm(arm, seed, pool_bag, returns, work, args):
                 model, _ = load_checkpoint(ckpt, task="key")
                 m = evaluate(model, test)
@@ -171,7 +215,10 @@ def main() -> int:
                              "return_mse": m["return_mse"], "reward_mse": m["reward_mse"],
                              "preference_accuracy": m["preference_accuracy"],
                              "reward_correlation": m["reward_correlation"]})
-    wall = time.monotonic() - start
+            arm_seconds[f"{arm}_{seed}"] = time.monotonic() - arm_start
+            write_json(args, rows, arm_seconds)
+    rows = [r for r in rows if r["seed"] in args.seeds]
+    wall = sum(v for k, v in arm_seconds.items() if int(k.split("_")[1]) in args.seeds)
     lines = [f"# Key, pool {args.pool} screened episodes (data seed 1, played in {'the screener' if args.screener_order else 'a random'} order per seed), test {args.test} (data seed 2); "
              f"{args.members}-member CSC ensembles, {args.max_epochs} epochs per version, warm-started; "
              f"a version every {args.batch} labels; seeds {args.seeds}",
@@ -189,13 +236,11 @@ def main() -> int:
                 worst = v.min() if key in ("preference_accuracy", "reward_correlation") else v.max()
                 cells.append(f"{v.mean():10.4f} [{worst:8.4f}]")
         lines.append(f"{labels:6d}  " + " ".join(cells[:2]) + "   " + " ".join(cells[2:]))
-    lines.append(f"# wall time {wall:.0f} s")
+    lines.append(f"# wall time {wall:.0f} s (sum over arms and seeds, this sitting's and earlier ones')")
     text = "\n".join(lines)
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".txt").write_text(text + "\n")
-    args.out.with_suffix(".json").write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()},
-                                                         "rows": rows, "wall_seconds": wall}, indent=1))
     import matplotlib
 
     matplotlib.use("Agg")
