@@ -71,7 +71,12 @@ def run_one(job: tuple) -> dict:
     return json.loads(done.read_text())
 
 
-def report(tasks: list, budgets: list, feedback: str = "returns") -> str:
+#: the order tasks are reported in
+TASK_ORDER = ("key", "timer", "moving", "charger", "lunar_lander")
+
+
+def report(feedback: str = "returns") -> str:
+    """The table (table.txt) and plot (loop_vs_offline.png) of every run in the results directory."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -80,6 +85,11 @@ def report(tasks: list, budgets: list, feedback: str = "returns") -> str:
     results = results_dir(feedback)
     what = "labels" if feedback == "returns" else "comparisons"
     runs = [json.loads(p.read_text()) for p in sorted(results.glob("*.json"))]
+    if not runs:
+        return f"# no runs in {results} yet"
+    present = {r["task"] for r in runs}
+    tasks = [t for t in TASK_ORDER if t in present] + sorted(present - set(TASK_ORDER))
+    budgets = sorted({sum(x["labels"] for x in r["rounds"]) for r in runs})
     lines = [f"# bench/reward_model_loop.py ({feedback}): final oracle return (mean of the last 50 of 400 training "
              "episodes) / greedy policy on 50 new episodes; median [min, max] over seeds (n)",
              "# command: .venv/bin/python bench/reward_model_loop.py --tasks " + " ".join(tasks) + " --budgets "
@@ -138,7 +148,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=4, help="rounds of the loop runs")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--work", type=Path, default=Path("runs/reward_model_loop"))
-    parser.add_argument("--report", action="store_true", help="run nothing: the table and plot of what is there")
+    parser.add_argument("--report", action="store_true", help="run nothing: the table and plot of every run there is (any task, budget)")
     parser.add_argument("--feedback", default="returns", choices=("returns", "preferences"),
                         help="return labels, or a perfect simulated teacher's comparisons")
     args = parser.parse_args()
@@ -152,7 +162,7 @@ def main() -> None:
             for job, r in zip(jobs, pool.map(run_one, jobs)):
                 print(f"  {run_name(*job[:4])}: final {r['final_oracle_return']:.2f}, greedy "
                       f"{r['greedy_oracle_return']:.2f}, {r['seconds']:.0f} s", flush=True)
-    print(report(args.tasks, args.budgets, args.feedback))
+    print(report(args.feedback))
 
 
 if __name__ == "__main__":
