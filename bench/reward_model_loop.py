@@ -90,11 +90,15 @@ def report(feedback: str = "returns") -> str:
     present = {r["task"] for r in runs}
     tasks = [t for t in TASK_ORDER if t in present] + sorted(present - set(TASK_ORDER))
     budgets = sorted({sum(x["labels"] for x in r["rounds"]) for r in runs})
+    groups: dict = {}  # the tasks run with each set of budgets: one command per set
+    for t in tasks:
+        key = tuple(sorted({sum(x["labels"] for x in r["rounds"]) for r in runs if r["task"] == t}))
+        groups.setdefault(key, []).append(t)
+    commands = ["# command: .venv/bin/python bench/reward_model_loop.py --tasks " + " ".join(ts) + " --budgets "
+                + " ".join(map(str, bs)) + ("" if feedback == "returns" else f" --feedback {feedback}")
+                + f" (loop: 4 rounds of budget / 4 {what}; offline: 1 round)" for bs, ts in groups.items()]
     lines = [f"# bench/reward_model_loop.py ({feedback}): final oracle return (mean of the last 50 of 400 training "
-             "episodes) / greedy policy on 50 new episodes; median [min, max] over seeds (n)",
-             "# command: .venv/bin/python bench/reward_model_loop.py --tasks " + " ".join(tasks) + " --budgets "
-             + " ".join(map(str, budgets)) + ("" if feedback == "returns" else f" --feedback {feedback}")
-             + f" (loop: 4 rounds of budget / 4 {what}; offline: 1 round)",
+             "episodes) / greedy policy on 50 new episodes; median [min, max] over seeds (n)", *commands,
              f"{'task':8s} {what[:6]:>6s} {'mode':8s} {'n':>2s} {'final':>26s} {'greedy':>26s} {'rounds':>6s}"]
     fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.4), squeeze=False)
     for i, task in enumerate(tasks):
