@@ -118,14 +118,15 @@ def agent(job: tuple) -> dict:
     torch.set_num_threads(1)
     from nmrm_ros.rl import train_agent
 
-    base = run_name(task, "csc_lstm", "perfect" if teacher == "calibrated" else teacher, RL_N, r)
+    source = "perfect" if teacher == "calibrated" else teacher  # the run whose model the agent's is
+    base = run_name(task, "csc_lstm", source, RL_N, r)
     name = base + (f"_cal{CAL_LABELS}" if teacher == "calibrated" else "")
     checkpoint = MODELS / out.name / "models" / f"{name}.pt"
     agent_dir = out / "agents" / name
     curve = agent_dir / "curve.csv"
     if not curve.is_file():
         if not (MODELS / out.name / "models" / f"{base}.pt").is_file():
-            run((task, "csc_lstm", "perfect" if teacher == "calibrated" else teacher, RL_N, r, overrides, out))
+            run((task, "csc_lstm", source, RL_N, r, overrides, out))
         if teacher == "calibrated" and not checkpoint.is_file():
             calibrated_model(MODELS / out.name / "models" / base, checkpoint, task, r)
         t0 = time.perf_counter()

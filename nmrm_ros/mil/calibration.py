@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .data import TrajectoryDataset
+from .data import BagTensors, TrajectoryDataset
 from .ensemble import MILEnsemble, _key
 
 #: architectures whose per-step reward is the reward head's last linear layer (times return_scale)
@@ -72,13 +72,13 @@ def fit_calibration(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
                                f"the data has {len(labelled)}"
                                + (" (all with the same return)" if len(labelled) >= 2 else ""))
     sub = ds.subset(labelled)
+    bags = BagTensors(sub)
     was_training = model.training
     model.eval()
     predicted = []
     with torch.no_grad():
-        for start in range(0, len(sub), batch_size):
-            x = torch.as_tensor(sub.states[start:start + batch_size], dtype=torch.float32)
-            lengths = torch.as_tensor(sub.lengths[start:start + batch_size])
+        for start in range(0, len(bags), batch_size):
+            x, lengths, _ = bags.batch(torch.arange(start, min(start + batch_size, len(bags))))
             predicted.append(model(x, lengths).returns.double().numpy())
     model.train(was_training)
     predicted = np.concatenate(predicted, axis=1)  # (K, N)
@@ -96,10 +96,10 @@ def calibrate(model: MILEnsemble, calibration: Calibration) -> MILEnsemble:
     check_calibratable(model)
     if len(calibration.gain) != model.members:
         raise CalibrationError(f"the calibration has {len(calibration.gain)} members, the model {model.members}")
-    out = copy.deepcopy(model)
-    last = out._head[-1] if out._head else None
-    if last is None:
+    if not model._head:
         raise CalibrationError("the model has no reward head to calibrate")
+    out = copy.deepcopy(model)
+    last = out._head[-1]
     weight = out.params[_key(f"head.{last}.weight")]  # (K, 1, in)
     bias = out.params[_key(f"head.{last}.bias")]  # (K, 1)
     scale = float(out.return_scale)
