@@ -302,8 +302,9 @@ def main() -> None:
         text = rl_report(out, kept)
         print(text)
         seeds = " ".join(map(str, sorted({x["seed"] for x in kept})))
+        tasks = " ".join(t for t in TASKS if any(x["task"] == t for x in kept))  # the table's tasks, not --tasks
         (out / "rl.txt").write_text(text + f"\n# command: .venv/bin/python bench/preferences.py --rl --tasks "
-                                    f"{' '.join(args.tasks)} --seeds {seeds} --episodes {args.episodes} (a task's "
+                                    f"{tasks} --seeds {seeds} --episodes {args.episodes} (a task's "
                                     f"row: the seeds it has so far; `--rl --report` redraws)\n")
         return
     if not args.report:
