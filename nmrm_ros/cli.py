@@ -764,6 +764,9 @@ def check(
     except ValueError as exc:  # a user's oracle that misbehaves (OracleError), a checkpoint that does not fit
         raise typer.BadParameter(str(exc)) from None
     if not all(r.passed for r in results):
+        from .rl.acceptance import next_step
+
+        typer.echo(next_step(results, str(checkpoint), task, oracle))
         raise typer.Exit(1)
 
 
@@ -828,6 +831,7 @@ def rl_train(
                f"({steps / max(run.seconds, 1e-9):.0f} steps/s); oracle return of the last 50 episodes "
                f"{run.curve.final_oracle_return():.3f}")
     typer.echo(f"wrote {out}/policy.zip, curve.csv, curve.png")
+    typer.echo(run.collapse.summary())
 
 
 @app.command("loop")

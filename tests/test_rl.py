@@ -134,9 +134,10 @@ def test_double_q_target_by_hand():
 
 def test_double_dqn_train_uses_the_double_target():
     """One gradient step of DoubleDQN equals a hand-made step on the same batch with the double
-    target (and differs from SB3's max target)."""
+    target (and differs from SB3's max target). Unbounded: the clipping of targets to the value
+    bound is tests/test_agent_trust.py's."""
     env = make_reward_env("key", "oracle", seed=0)
-    cfg = load_rl_config("dqn", episodes=2, learning_starts=0, batch_size=8)
+    cfg = load_rl_config("dqn", episodes=2, learning_starts=0, batch_size=8, bound_values=False)
     model = make_algorithm(env, "dqn", cfg, episode_length=100, seed=0)
     model.learn(total_timesteps=20)   # fills the buffer (and trains; we only need the state after)
     state = {k: v.clone() for k, v in model.policy.state_dict().items()}

@@ -227,6 +227,8 @@ class Learner:
         self.save_buffer = bool(p["save_replay_buffer"])
         self.envs: list = []  # one TopicEnv per robot
         self.model = None
+        self.keeper = None  # the PolicyKeeper (kept_policy): policy.zip is its best snapshot
+        self.finished = False
         self.thread: threading.Thread | None = None
         self.records: list = []      # (episode id, learnt return, steps, wall time)
         self.labels: dict = {}       # (robot, episode id) -> oracle return (TrajectoryReturn)
@@ -320,14 +322,18 @@ class Learner:
             if self.overlap and len(self.envs) == 1:  # a fleet's envs step in threads of their own
                 self.model.overlap_training = True
                 self.envs[0].after_publish = self.model.train_pending
+            from ..rl.training import make_keeper
+
+            self.keeper = make_keeper(self.cfg)
             callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode,
-                                            between_steps=self.relabel_if_served)
+                                            between_steps=self.relabel_if_served, keeper=self.keeper)
             t0 = time.monotonic()
             try:
                 self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
             finally:
                 self.learn_seconds = time.monotonic() - t0
             self.outcome = f"finished {self.episodes} episodes"
+            self.finished = True
             self.wait_for_labels()
         except LearnerStopped:
             self.outcome = "stopped by shutdown"
@@ -370,11 +376,13 @@ class Learner:
         except (CheckpointError, ValueError, OSError) as exc:
             log.error(f"replay buffer not relabelled with {wanted}: {exc}")
             return
+        if self.keeper is not None:  # a policy is kept with the model it acted on
+            self.keeper.retag(wanted, self.model)
         log.info(f"replay buffer relabelled with {name}: {n} transitions in {time.monotonic() - t0:.1f} s")
 
     def on_episode(self, rec, info: dict) -> None:
         key = (info.get("robot", 0), info.get("episode_id", -1))
-        self.records.append((key, rec.learnt_return, rec.steps, time.monotonic() - self.t0))
+        self.records.append((key, rec.learnt_return, rec.steps, time.monotonic() - self.t0, rec.q))
         n = len(self.records)
         if n % self.log_every == 0 or n == self.episodes:
             last = self.records[-self.log_every:]
@@ -416,16 +424,29 @@ class Learner:
         # one robot: the curve's episode column is env_sim's episode id; a fleet: the order in
         # which its episodes ended
         fleet = len(self.node.robots) > 1
-        curve = LearningCurve([EpisodeRecord(n if fleet else key[1], labels.get(key, float("nan")), g, steps, wall)
-                               for n, (key, g, steps, wall) in enumerate(self.records)])
+        curve = LearningCurve([EpisodeRecord(n if fleet else key[1], labels.get(key, float("nan")), g, steps, wall,
+                                             q=dict(q))
+                               for n, (key, g, steps, wall, q) in enumerate(self.records)])
+        report = None
+        if self.keeper is not None:  # the labeller's judgements arrive after their episodes
+            for n, (key, *_) in enumerate(self.records):
+                self.keeper.set_judged(n, labels.get(key, float("nan")))
+            from ..rl.collapse import collapse_report
+            from ..rl.training import value_bound_high
+
+            kept = self.keeper.kept()
+            report = collapse_report(curve, value_bound_high(self.model), kept.episode if kept else None)
         save_agent(self.model, curve, self.out, {
             "task": self.task, "algorithm": self.algo, "seed": self.seed, "reward_source": self.source,
             "reward": ("oracle" if self.use_hidden else "oracle-no-hidden") if self.source == "oracle" else "model",
             "episodes": self.episodes, "episodes_done": len(self.records), "observe_hidden": self.use_hidden,
-            "outcome": self.outcome, "config": self.cfg, "robots": self.node.robots})
+            "outcome": self.outcome, "config": self.cfg, "robots": self.node.robots},
+            keeper=self.keeper, collapse=report)
         if self.save_buffer:
             self.model.save_replay_buffer(self.out / "replay_buffer.pkl")
         self.node.get_logger().info(f"saved {self.out}/policy.zip after {len(self.records)} episode(s)")
+        if self.finished and report is not None:
+            self.node.get_logger().info(report.summary())
 
 
 def main(args=None) -> int:

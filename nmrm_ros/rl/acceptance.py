@@ -185,3 +185,28 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     return HackingCheck(float(agent_l.mean()), float(agent_o.mean()), float(rand_l.mean()),
                         float(rand_o.mean()), float(np.sqrt(np.mean((rand_l - rand_o) ** 2))),
                         float(scale), eval_episodes)
+
+
+def next_step(results: list, checkpoint: str, task: str, oracle: str = "") -> str:
+    """What to run when a check fails (printed by `nmrm check`): the reward-model <-> agent loop
+    labels the agent's own episodes, where the model is wrong, with the same oracle; people do the
+    same on the labelling page with the agent acting (label.launch.yaml policy:=learn)."""
+    import shlex
+
+    failed = {type(r).__name__ for r in results if not r.passed}
+    q = shlex.quote
+    oracle_opt = f" --oracle {q(oracle)}" if oracle else ""
+    loop = (f"nmrm loop --task {q(task)}{oracle_opt} --rounds 4 --labels-per-round 500 "
+            f"--out runs/loop")
+    people = (f"nmrm launch launch_scripts/label.launch.yaml task:={q(task)} checkpoint:={q(checkpoint)} "
+              f"policy:=learn person:=NAME")
+    lines = []
+    if "HackingCheck" in failed:
+        lines.append("next: the agent found where the model is wrong; label its own episodes so the model "
+                     f"learns there (the reward-model <-> agent loop): {loop}")
+        lines.append(f"      or label them yourself on the page while the agent learns: {people}")
+    if "MemoryCheck" in failed:
+        lines.append("next: the served state forgets what the oracle remembers; train on more (or longer) "
+                     "labelled episodes, or with a larger hidden state (nmrm train --help), then check again; "
+                     f"the loop also adds episodes where the agent goes: {loop}")
+    return "\n".join(lines)

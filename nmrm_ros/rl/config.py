@@ -89,7 +89,8 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
                 exploration_fraction=float(cfg["exploration_fraction"]),
                 exploration_initial_eps=cfg["exploration_initial_eps"],
                 exploration_final_eps=cfg["exploration_final_eps"], max_grad_norm=cfg["max_grad_norm"],
-                double_q=bool(cfg["double_q"]), policy_kwargs=policy_kwargs)
+                double_q=bool(cfg["double_q"]), bound_values=bool(cfg.get("bound_values", True)),
+                policy_kwargs=policy_kwargs)
     if algo == "sac":
         from .sac import SplitLRSAC
 

@@ -17,11 +17,15 @@ EVAL_SEED = 10**8
 
 @dataclass
 class EvaluationResult:
-    """Oracle returns (episodes,) of the greedy policy and of a random policy on the same seeds."""
+    """Oracle returns (episodes,) of the greedy policy and of a random policy on the same seeds,
+    and the learnt returns of the same episodes (what the reward the agent learnt on paid them;
+    for an oracle reward, the oracle's)."""
 
     returns: np.ndarray
     random_returns: np.ndarray
     reward: str
+    learnt_returns: np.ndarray | None = None
+    random_learnt_returns: np.ndarray | None = None
 
     @staticmethod
     def _ms(v: np.ndarray) -> tuple[float, float]:
@@ -30,8 +34,16 @@ class EvaluationResult:
     def summary(self) -> str:
         m, s = self._ms(self.returns)
         rm, rs = self._ms(self.random_returns)
-        return (f"oracle return over {len(self.returns)} episodes: policy {m:.3f} ± {s:.3f} (SEM), "
+        text = (f"oracle return over {len(self.returns)} episodes: policy {m:.3f} ± {s:.3f} (SEM), "
                 f"random policy {rm:.3f} ± {rs:.3f}")
+        if self.reward == "model" and self.learnt_returns is not None:
+            lm, ls = self._ms(self.learnt_returns)
+            text += f"; the model paid the policy {lm:.3f} ± {ls:.3f}"
+            if self.random_learnt_returns is not None:
+                text += f", the random policy {self._ms(self.random_learnt_returns)[0]:.3f}"
+            gap = lm - m
+            text += f" (model - oracle: {gap:+.3f})"
+        return text
 
 
 def load_agent(policy: str | Path):
@@ -126,25 +138,28 @@ def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, epis
     if env.observation_space.shape != model.observation_space.shape:
         raise ValueError(f"the policy observes {model.observation_space.shape}, the {reward} env gives "
                          f"{env.observation_space.shape}")
-    returns = _run(env, episodes, seed, lambda obs: model.predict(obs, deterministic=True)[0])
+    returns, learnt = _run(env, episodes, seed, lambda obs: model.predict(obs, deterministic=True)[0])
     rng = np.random.default_rng(seed)
     space = env.action_space
     if hasattr(space, "n"):
         act = lambda obs: int(rng.integers(space.n))  # noqa: E731
     else:
         act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
-    random_returns = _run(env, episodes, seed, act)
-    return EvaluationResult(np.asarray(returns), np.asarray(random_returns), reward)
+    random_returns, random_learnt = _run(env, episodes, seed, act)
+    return EvaluationResult(np.asarray(returns), np.asarray(random_returns), reward, np.asarray(learnt),
+                            np.asarray(random_learnt))
 
 
-def _run(env, episodes: int, seed: int, act) -> list:
-    returns = []
+def _run(env, episodes: int, seed: int, act) -> tuple[list, list]:
+    """(oracle returns, learnt returns) of `episodes` episodes under `act`."""
+    returns, learnt = [], []
     obs, _ = env.reset(seed=seed)
     for _ in range(episodes):
         while True:
             obs, _, terminated, truncated, info = env.step(act(obs))
             if terminated or truncated:
                 returns.append(info["oracle_return"])
+                learnt.append(info.get("learnt_return", np.nan))
                 obs, _ = env.reset()
                 break
-    return returns
+    return returns, learnt

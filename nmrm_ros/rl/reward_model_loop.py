@@ -139,6 +139,8 @@ class LoopRounds(EpisodeCurveCallback):
         from .replay_relabel import relabel_replay_buffer
 
         model = self.next_round(self.round, self.model)
+        if self.keeper is not None:  # a policy is kept with the model it acted on
+            self.keeper.retag(str(model), self.model)
         wrapper = find_reward_wrapper(self.training_env.envs[0])
         obs = wrapper.swap_model(model)
         self.model._last_obs = obs[None].copy()  # noqa: SLF001 - the observation the agent acts on next
@@ -283,7 +285,9 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
         rnd.first_episode, rnd.last_episode = edges[k], edges[k + 1]
         rnd.mean_oracle_return = float(returns[edges[k]:edges[k + 1]].mean()) if edges[k + 1] > edges[k] else float("nan")
     result.final_oracle_return = run.curve.final_oracle_return()
-    ev = evaluate_agent(run.model, task, result.rounds[-1].checkpoint, reward="model", oracle=oracle)
+    # the kept policy (kept_policy: the best snapshot of the run), served by the model it acted on
+    kept = run.kept_checkpoint or result.rounds[-1].checkpoint
+    ev = evaluate_agent(run.model, task, kept, reward="model", oracle=oracle)
     result.greedy_oracle_return = float(np.mean(ev.returns))
     result.seconds = time.perf_counter() - t0
     write()

@@ -4,14 +4,19 @@
 (`make_reward_env`), the paper's algorithm for the task (`make_algorithm`), lets SB3's `learn()`
 run, and writes into `out/`:
 
-- `policy.zip`: the SB3 model (load with `DoubleDQN.load` / `SplitLRSAC.load`, or SB3's DQN/SAC);
+- `policy.zip`: the SB3 model (load with `DoubleDQN.load` / `SplitLRSAC.load`, or SB3's DQN/SAC)
+  with the kept policy's weights: the best snapshot of the run (`kept_policy`), and
+  `last_policy.zip` beside it when that is not the last one;
 - `curve.csv`: one row per episode: episode, oracle_return, learnt_return, steps, wall_time (s),
   oracle_<component> per reward component where the oracle has them (Lunar Lander), and for a
   value-based agent (DQN) q_max and q_spread: the episode's mean over steps of max_a Q(s, a) and of
   max_a Q − min_a Q (a spread near 0 means the network no longer tells actions apart);
 - `curve.png`: the oracle and learnt-reward returns per episode;
 - `agent.json`: task, reward kind, checkpoint (and its weights' SHA-256), seeds and config (what
-  `evaluate_agent` needs).
+  `evaluate_agent` needs), the kept policy and the collapse report (`collapse`).
+
+The run ends with one line (`AgentRun.collapse.summary()`): whether learning collapsed (a late dip,
+values beyond the bound the rewards allow) and which policy was kept.
 """
 
 from __future__ import annotations
@@ -29,6 +34,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import TqdmExperimentalWarning
 
 from ..mil.checkpoint import recorded_weights_sha256
+from .collapse import CollapseReport, collapse_report
+from .kept_policy import PolicyKeeper
 
 
 CURVE_FIELDS = ("episode", "oracle_return", "learnt_return", "steps", "wall_time")
@@ -97,11 +104,14 @@ class EpisodeCurveCallback(BaseCallback):
     stops learning after `max_episodes` episodes (Lunar Lander's episodes can end early).
     `on_episode(record, info)` is called for each, with the episode's final `info`;
     `between_steps()` before each of SB3's rollouts (after a step's transition is stored and
-    trained on, before the agent acts again: e.g. to relabel the replay buffer)."""
+    trained on, before the agent acts again: e.g. to relabel the replay buffer). `keeper`: the
+    `PolicyKeeper` that snapshots the policy and keeps the best (None: keep the last)."""
 
-    def __init__(self, max_episodes: int | None = None, on_episode=None, between_steps=None) -> None:
+    def __init__(self, max_episodes: int | None = None, on_episode=None, between_steps=None,
+                 keeper: PolicyKeeper | None = None) -> None:
         super().__init__()
         self.curve = LearningCurve()
+        self.keeper = keeper
         self.max_episodes = max_episodes
         self.on_episode = on_episode
         self.between_steps = between_steps
@@ -137,6 +147,9 @@ class EpisodeCurveCallback(BaseCallback):
                                 time.perf_counter() - self._t0, dict(info.get("oracle_components", {})), q)
             self.curve.records.append(rec)
             self._steps[i] = 0
+            if self.keeper is not None:
+                self.keeper.on_episode(self.model, rec.learnt_return, rec.oracle_return, q.get("q_max"),
+                                       value_bound_high(self.model))
             if self.on_episode is not None:
                 self.on_episode(rec, info)
         if self.max_episodes is not None and len(self.curve.records) >= self.max_episodes:
@@ -158,12 +171,28 @@ class EpisodeCurveCallback(BaseCallback):
         self._q_sums[:, 1] += q.max(1) - q.min(1)
 
 
+def value_bound_high(model) -> float | None:
+    """The upper end of the value bound the agent's targets are clipped to (None: not bounded)."""
+    bound = getattr(model, "value_bound", None)
+    return None if bound is None else float(bound.high)
+
+
+def make_keeper(cfg: dict) -> PolicyKeeper | None:
+    """The config's policy keeper (`keep_every` episodes a snapshot; 0: keep the last policy)."""
+    every = int(cfg.get("keep_every", 0) or 0)
+    return PolicyKeeper(every) if every > 0 else None
+
+
 @dataclass
 class AgentRun:
+    """model: the agent with the kept policy's weights; collapse: the end-of-run report."""
+
     model: object
     curve: LearningCurve
     seconds: float
     out: Path | None
+    collapse: CollapseReport | None = None
+    kept_checkpoint: str | None = None  # the reward model the kept policy acted on (None: `checkpoint`)
 
 
 def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
@@ -209,28 +238,56 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     if callback is None:
         callback = EpisodeCurveCallback(on_episode=on_episode)
     callback.max_episodes = episodes
+    if callback.keeper is None:
+        callback.keeper = make_keeper(cfg)
     t0 = time.perf_counter()
     with warnings.catch_warnings():  # SB3's progress bar is tqdm.rich, which warns that it is experimental
         warnings.simplefilter("ignore", TqdmExperimentalWarning)
         model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
     seconds = time.perf_counter() - t0
+    keeper = callback.keeper
+    kept = keeper.kept() if keeper is not None else None
+    report = collapse_report(callback.curve, value_bound_high(model), kept.episode if kept else None)
+    # a loop swaps models: the kept policy goes with the one it acted on (`PolicyKeeper.retag`)
+    policy_checkpoint = (kept.tag if kept is not None else keeper.tag) if keeper is not None else None
+    policy_checkpoint = policy_checkpoint or (str(checkpoint) if checkpoint is not None else None)
     out_dir = None
     if out is not None:
         out_dir = Path(out)
         save_agent(model, callback.curve, out_dir, {
             "task": task, "reward": reward, "algorithm": algo,
-            "checkpoint": str(checkpoint) if checkpoint is not None else None,
-            "checkpoint_sha256": recorded_weights_sha256(checkpoint) if reward == "model" else None,
+            "checkpoint": policy_checkpoint,
+            "checkpoint_sha256": recorded_weights_sha256(policy_checkpoint) if reward == "model" else None,
             "served_state": served if reward == "model" else None, "oracle": oracle, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
             "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
-            "config": cfg})
-    return AgentRun(model, callback.curve, seconds, out_dir)
+            "config": cfg}, keeper=keeper, collapse=report)
+    if kept is not None:
+        model.policy.load_state_dict(kept.weights)
+    return AgentRun(model, callback.curve, seconds, out_dir, report, policy_checkpoint if reward == "model" else None)
 
 
-def save_agent(model, curve: LearningCurve, out: Path, meta: dict) -> None:
-    """policy.zip, curve.csv, curve.png and agent.json in `out`."""
+def save_agent(model, curve: LearningCurve, out: Path, meta: dict, keeper: PolicyKeeper | None = None,
+               collapse: CollapseReport | None = None) -> None:
+    """policy.zip (the kept policy: `keeper.kept()`, else the model as it is), last_policy.zip (the
+    model as it is, when another policy is kept), curve.csv, curve.png and agent.json in `out`.
+    The model keeps its own weights."""
     out.mkdir(parents=True, exist_ok=True)
-    model.save(out / "policy.zip")
+    kept = keeper.kept() if keeper is not None else None
+    if kept is None:
+        model.save(out / "policy.zip")
+        (out / "last_policy.zip").unlink(missing_ok=True)
+    else:
+        model.save(out / "last_policy.zip")
+        live = {k: v.clone() for k, v in model.policy.state_dict().items()}
+        model.policy.load_state_dict(kept.weights)
+        try:
+            model.save(out / "policy.zip")
+        finally:
+            model.policy.load_state_dict(live)
+    if keeper is not None:
+        meta = dict(meta, kept_policy=keeper.summary())
+    if collapse is not None:
+        meta = dict(meta, collapse=collapse.to_dict())
     curve.write_csv(out / "curve.csv")
     title = f"{meta.get('task')}: {meta.get('algorithm')} on reward {meta.get('reward')}, seed {meta.get('seed')}"
     if curve.records:

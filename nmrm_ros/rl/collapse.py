@@ -1,0 +1,100 @@
+"""Did learning collapse? The one line `nmrm rl train` and the agent node end with.
+
+Two signs, from a run's learning curve (`LearningCurve`) and its agent's value bound:
+
+- **late dip**: over windows of `window` consecutive episodes (50, or a quarter of a shorter run),
+  a window in the second half whose mean return fell back by more than half of what the run had
+  gained before it (gain: the best earlier window's mean minus the first window's). Judged on the
+  oracle's (labeller's) return where the curve has one, else on the learnt return.
+- **values beyond their bound**: an episode whose mean max_a Q left the bound that the rewards
+  allow (`value_bound`) by more than 1%.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class CollapseReport:
+    """dip: (best earlier window mean, its first episode, lowest later window mean, its first
+    episode) or None; q_peak: the highest episode mean of max Q (None: not a value-based agent);
+    bound_high: the value bound's upper end (None: unbounded); judged_by: "oracle" | "learnt"."""
+
+    dip: tuple | None
+    q_peak: float | None
+    bound_high: float | None
+    judged_by: str
+    window: int
+    kept_episode: int | None = None  # the kept policy's snapshot (None: the last policy)
+
+    @property
+    def q_beyond_bound(self) -> bool:
+        return (self.q_peak is not None and self.bound_high is not None
+                and self.q_peak > self.bound_high * 1.01 + 1e-6)
+
+    @property
+    def collapsed(self) -> bool:
+        return self.dip is not None or self.q_beyond_bound
+
+    def summary(self) -> str:
+        kept = ("the last policy is kept" if self.kept_episode is None
+                else f"kept the policy of episode {self.kept_episode} (policy.zip; the last: last_policy.zip)")
+        if not self.collapsed:
+            q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}" + (
+                "" if self.bound_high is None else f" within its bound {self.bound_high:.3g}")
+            return f"no collapse: no late dip in the {self.judged_by} return{q}; {kept}"
+        parts = []
+        if self.dip is not None:
+            best, at, low, low_at = self.dip
+            parts.append(f"the {self.judged_by} return fell from {best:.3g} (episodes {at}-{at + self.window - 1}) "
+                         f"to {low:.3g} (episodes {low_at}-{low_at + self.window - 1})")
+        if self.q_beyond_bound:
+            parts.append(f"max Q reached {self.q_peak:.3g}, beyond the {self.bound_high:.3g} the rewards allow")
+        return "learning collapsed: " + "; ".join(parts) + f"; {kept}"
+
+    def to_dict(self) -> dict:
+        return {"collapsed": self.collapsed, "late_dip": self.dip, "q_peak": self.q_peak,
+                "value_bound": self.bound_high, "q_beyond_bound": self.q_beyond_bound,
+                "judged_by": self.judged_by, "window": self.window, "summary": self.summary()}
+
+
+def _windows(values: np.ndarray, window: int) -> np.ndarray:
+    return np.convolve(values, np.ones(window) / window, mode="valid")
+
+
+def late_dip(returns, window: int) -> tuple | None:
+    """(best earlier mean, its start, lowest later mean, its start) of the first window in the
+    second half that lost more than half the gain before it, else None."""
+    returns = np.asarray(returns, dtype=float)
+    n = len(returns)
+    if n < 2 * window:
+        return None
+    means = _windows(returns, window)
+    first = means[0]
+    for start in range(max(n // 2, window), len(means)):
+        earlier = means[: start - window + 1]  # windows that end before this one starts
+        if earlier.size == 0:
+            continue
+        best_at = int(np.argmax(earlier))
+        gain = earlier[best_at] - first
+        if gain > 0 and means[start] < first + 0.5 * gain:
+            low_at = start + int(np.argmin(means[start:]))
+            return float(earlier[best_at]), best_at, float(means[low_at]), low_at
+    return None
+
+
+def collapse_report(curve, bound_high: float | None = None, kept_episode: int | None = None,
+                    window: int = 50) -> CollapseReport:
+    """The report for a `LearningCurve` (its records' oracle_return, learnt_return and q) and the
+    agent's value bound (`ValueBound.high`, None for none)."""
+    records = curve.records
+    window = max(1, min(window, len(records) // 4))
+    oracle = np.array([r.oracle_return for r in records], dtype=float)
+    judged_by = "oracle" if len(oracle) and np.isfinite(oracle).all() else "learnt"
+    returns = oracle if judged_by == "oracle" else np.array([r.learnt_return for r in records], float)
+    q = [r.q["q_max"] for r in records if r.q and np.isfinite(r.q.get("q_max", np.nan))]
+    return CollapseReport(late_dip(returns, window), max(q) if q else None, bound_high, judged_by,
+                          window, kept_episode)
