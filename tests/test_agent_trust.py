@@ -5,6 +5,8 @@ run next when it fails."""
 from __future__ import annotations
 
 import math
+import tempfile
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -209,3 +211,47 @@ def test_a_policy_is_kept_with_the_model_it_acted_on():
     assert [s.episode for s in keeper.snapshots][:7] == [10, 20, 30, 40, 55, 60, 70]
     kept = keeper.kept()
     assert kept.episode == 55 and kept.tag == "model_1" and keeper.summary()["tag"] == "model_1"
+
+
+class Line(gym.Env):
+    """A continuous 1-D task: 10 steps, reward 1 - |x| in [0, 1]."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = 0.5, 0
+        return np.array([self.x], np.float32), {}
+
+    def step(self, action):
+        self.x = float(np.clip(self.x + 0.2 * float(action[0]), -1, 1))
+        self.t += 1
+        return np.array([self.x], np.float32), 1.0 - abs(self.x), False, self.t >= 10, {}
+
+
+def test_sac_target_critics_are_clipped_to_the_soft_value_bound():
+    from nmrm_ros.rl import SplitLRSAC
+
+    torch.set_num_threads(1)
+    model = SplitLRSAC("MlpPolicy", Line(), seed=0, device="cpu", learning_starts=50, batch_size=32,
+                       gamma=0.9, ent_coef=0.2, policy_kwargs={"net_arch": [16, 16]})
+    model.learn(total_timesteps=60)
+    bound = model.value_bound
+    assert bound is not None and bound.reward_high <= 1.0
+    assert bound.high == pytest.approx((bound.reward_high + 0.2 * np.log(2.0)) / 0.1)
+    with torch.no_grad():  # target critics whose values ran away
+        for q in model.policy.critic_target.q_networks:
+            q[-1].bias.fill_(1e4)
+    before = model.targets_clipped
+    model.train(gradient_steps=1, batch_size=32)
+    assert model.targets_clipped > before
+    with torch.no_grad():
+        qs = model.critic_target(torch.zeros(4, 1), torch.zeros(4, 1))
+    assert all(float(q.max()) <= bound.high + 1e-4 for q in qs)
+    # saved and loaded as SB3's SAC, as `nmrm rl evaluate` loads it
+    from stable_baselines3 import SAC
+
+    path = Path(tempfile.mkdtemp()) / "p.zip"
+    model.save(path)
+    SAC.load(path, device="cpu").predict(np.zeros(1, np.float32), deterministic=True)

@@ -100,5 +100,6 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
             buffer_size=int(cfg["buffer_size"]), learning_starts=int(cfg["learning_starts"]),
             batch_size=int(cfg["batch_size"]), tau=cfg["tau"], gamma=cfg["gamma"],
             train_freq=int(cfg["train_freq"]), gradient_steps=int(cfg["gradient_steps"]),
-            ent_coef=cfg["ent_coef"], policy_kwargs=policy_kwargs)
+            ent_coef=cfg["ent_coef"], bound_values=bool(cfg.get("bound_values", True)),
+            policy_kwargs=policy_kwargs)
     raise ValueError(f"unknown algorithm {algo!r}: use dqn or sac")
