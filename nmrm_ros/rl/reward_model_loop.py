@@ -34,7 +34,8 @@ episodes' true returns stay in labels.npz as ground truth (used for training onl
 Output in `out/`: labels.npz (every label, in order; round r's are rows [r N, (r + 1) N)),
 model_r.{pt,json} per round, agent/ (policy.zip, curve.csv, agent.json as `nmrm rl train`'s) and
 loop.json (per round: labels, training summary, the agent's episodes and their mean oracle return;
-the final oracle return and a greedy evaluation).
+the final oracle return and a greedy evaluation of the kept policy, `agent/policy.zip`, with the
+model it acted on, `kept_checkpoint`; the agent's collapse report).
 """
 
 from __future__ import annotations
@@ -78,6 +79,8 @@ class LoopResult:
     seconds: float = 0.0
     out: str = ""
     feedback: str = "returns"
+    collapse: str = ""         # the agent's collapse report (`nmrm_ros.rl.collapse`)
+    kept_checkpoint: str = ""  # the model the kept policy (agent/policy.zip) acted on
 
     def summary(self) -> str:
         prefs = self.feedback == "preferences"
@@ -90,6 +93,8 @@ class LoopResult:
                          f"{f'{r.first_episode}-{r.last_episode - 1}':>15s} {r.mean_oracle_return:14.3f}")
         lines.append(f"final oracle return (last 50 episodes) {self.final_oracle_return:.3f}; greedy policy "
                      f"on 50 new episodes {self.greedy_oracle_return:.3f}; {self.seconds:.0f} s")
+        if self.collapse:
+            lines.append(self.collapse)
         return "\n".join(lines)
 
 
@@ -287,6 +292,7 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     result.final_oracle_return = run.curve.final_oracle_return()
     # the kept policy (kept_policy: the best snapshot of the run), served by the model it acted on
     kept = run.kept_checkpoint or result.rounds[-1].checkpoint
+    result.kept_checkpoint, result.collapse = str(kept), run.collapse.summary() if run.collapse else ""
     ev = evaluate_agent(run.model, task, kept, reward="model", oracle=oracle)
     result.greedy_oracle_return = float(np.mean(ev.returns))
     result.seconds = time.perf_counter() - t0
