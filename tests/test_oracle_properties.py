@@ -1,6 +1,7 @@
 """Property tests (hypothesis) of the oracles over random trajectories."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -62,7 +63,9 @@ def _paper_return(task: str, states: np.ndarray) -> float:
 @given(trajectories, st.sampled_from(["timer", "moving", "key", "charger"]))
 def test_returns_match_the_papers_definitions(states, task):
     labels = make_oracle(task).label(states)
-    assert labels.returns[0] == _paper_return(task, states[0])
+    # equal up to float rounding: Charger's charge is summed in another order by the vectorised
+    # oracle (7 charges: 0.13999999999999999 there, 0.14 here), 1 ulp per step at most
+    assert labels.returns[0] == pytest.approx(_paper_return(task, states[0]), rel=1e-12, abs=1e-12)
 
 
 def test_paper_returns_by_hand():
