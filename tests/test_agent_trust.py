@@ -5,8 +5,6 @@ run next when it fails."""
 from __future__ import annotations
 
 import math
-import tempfile
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -230,7 +228,7 @@ class Line(gym.Env):
         return np.array([self.x], np.float32), 1.0 - abs(self.x), False, self.t >= 10, {}
 
 
-def test_sac_target_critics_are_clipped_to_the_soft_value_bound():
+def test_sac_target_critics_are_clipped_to_the_soft_value_bound(tmp_path):
     from nmrm_ros.rl import SplitLRSAC
 
     torch.set_num_threads(1)
@@ -252,6 +250,24 @@ def test_sac_target_critics_are_clipped_to_the_soft_value_bound():
     # saved and loaded as SB3's SAC, as `nmrm rl evaluate` loads it
     from stable_baselines3 import SAC
 
-    path = Path(tempfile.mkdtemp()) / "p.zip"
+    path = tmp_path / "p.zip"
     model.save(path)
     SAC.load(path, device="cpu").predict(np.zeros(1, np.float32), deterministic=True)
+
+
+@pytest.mark.parametrize("line, message", [
+    ("keep_every: -1", "keep_every in .* must be a whole number of episodes >= 0"),
+    ("keep_every: 2.5", "keep_every in .* must be a whole number"),
+    ("bound_values: maybe", "bound_values in .* must be true or false"),
+])
+def test_nonsense_trust_settings_are_one_line_errors(tmp_path, line, message):
+    from nmrm_ros.rl import load_rl_config
+
+    config = tmp_path / "rl.yaml"
+    config.write_text(f"dqn: {{learning_rate: 1.0e-3, {line}}}\n")
+    with pytest.raises(ValueError, match=message):
+        load_rl_config("dqn", config)
+    config.write_text("dqn: {learning_rate: 1.0e-3}\n")  # a config written before them: the defaults
+    from nmrm_ros.rl.config import trust_settings
+
+    assert trust_settings(load_rl_config("dqn", config)) == {"bound_values": True, "keep_every": 20}

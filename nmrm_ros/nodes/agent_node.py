@@ -431,11 +431,9 @@ class Learner:
         if self.keeper is not None:  # the labeller's judgements arrive after their episodes
             for n, (key, *_) in enumerate(self.records):
                 self.keeper.set_judged(n, labels.get(key, float("nan")))
-            from ..rl.collapse import collapse_report
-            from ..rl.training import value_bound_high
+            from ..rl.training import end_of_run
 
-            kept = self.keeper.kept()
-            report = collapse_report(curve, value_bound_high(self.model), kept.episode if kept else None)
+            _, report = end_of_run(curve, self.model, self.keeper)
         save_agent(self.model, curve, self.out, {
             "task": self.task, "algorithm": self.algo, "seed": self.seed, "reward_source": self.source,
             "reward": ("oracle" if self.use_hidden else "oracle-no-hidden") if self.source == "oracle" else "model",

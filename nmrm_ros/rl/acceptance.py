@@ -193,7 +193,7 @@ def next_step(results: list, checkpoint: str, task: str, oracle: str = "") -> st
     same on the labelling page with the agent acting (label.launch.yaml policy:=learn)."""
     import shlex
 
-    failed = {type(r).__name__ for r in results if not r.passed}
+    failed = [r for r in results if not r.passed]
     q = shlex.quote
     oracle_opt = f" --oracle {q(oracle)}" if oracle else ""
     loop = (f"nmrm loop --task {q(task)}{oracle_opt} --rounds 4 --labels-per-round 500 "
@@ -201,11 +201,11 @@ def next_step(results: list, checkpoint: str, task: str, oracle: str = "") -> st
     people = (f"nmrm launch launch_scripts/label.launch.yaml task:={q(task)} checkpoint:={q(checkpoint)} "
               f"policy:=learn person:=NAME")
     lines = []
-    if "HackingCheck" in failed:
+    if any(isinstance(r, HackingCheck) for r in failed):
         lines.append("next: the agent found where the model is wrong; label its own episodes so the model "
                      f"learns there (the reward-model <-> agent loop): {loop}")
         lines.append(f"      or label them yourself on the page while the agent learns: {people}")
-    if "MemoryCheck" in failed:
+    if any(isinstance(r, MemoryCheck) for r in failed):
         lines.append("next: the served state forgets what the oracle remembers; train on more (or longer) "
                      "labelled episodes, or with a larger hidden state (nmrm train --help), then check again; "
                      f"the loop also adds episodes where the agent goes: {loop}")

@@ -55,11 +55,36 @@ def load_rl_config(algo: str, path: str | Path | None = None, task: str | None =
         if not isinstance(own, dict):
             raise ValueError(f"{entry}.{algo} in {source} must be a table of settings")
         changes = {**own, **{k: v for k, v in overrides.items() if v is not None}}
-    unknown = set(changes) - set(cfg)
+    unknown = set(changes) - set(cfg) - set(TRUST_DEFAULTS)
     if unknown:
         raise ValueError(f"unknown RL settings {sorted(unknown)}")
     cfg.update({k: v for k, v in changes.items() if v is not None})
+    check_trust_settings(cfg, source)
     return cfg
+
+
+#: the settings that make an agent trustworthy (issue 50) and their defaults, for every task:
+#: targets clipped to the value bound (`value_bound`), a policy snapshot every `keep_every`
+#: episodes, the best kept (`kept_policy`; 0: keep the last policy)
+TRUST_DEFAULTS = {"bound_values": True, "keep_every": 20}
+
+
+def trust_settings(cfg: dict) -> dict:
+    """bound_values and keep_every of a config section, their defaults where it has none (a
+    config written before them)."""
+    return {k: cfg.get(k, v) for k, v in TRUST_DEFAULTS.items()}
+
+
+def check_trust_settings(cfg: dict, source) -> None:
+    """ValueError (one line) for a bound_values that is not true/false or a keep_every that is not
+    a whole number >= 0."""
+    trust = trust_settings(cfg)
+    if not isinstance(trust["bound_values"], bool):
+        raise ValueError(f"bound_values in {source} must be true or false, got {trust['bound_values']!r}")
+    every = trust["keep_every"]
+    if isinstance(every, bool) or not isinstance(every, int) or every < 0:
+        raise ValueError(f"keep_every in {source} must be a whole number of episodes >= 0 (0: keep the last "
+                         f"policy), got {every!r}")
 
 
 def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0, verbose: int = 0):
@@ -89,7 +114,7 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
                 exploration_fraction=float(cfg["exploration_fraction"]),
                 exploration_initial_eps=cfg["exploration_initial_eps"],
                 exploration_final_eps=cfg["exploration_final_eps"], max_grad_norm=cfg["max_grad_norm"],
-                double_q=bool(cfg["double_q"]), bound_values=bool(cfg.get("bound_values", True)),
+                double_q=bool(cfg["double_q"]), bound_values=trust_settings(cfg)["bound_values"],
                 policy_kwargs=policy_kwargs)
     if algo == "sac":
         from .sac import SplitLRSAC
@@ -100,6 +125,6 @@ def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0
             buffer_size=int(cfg["buffer_size"]), learning_starts=int(cfg["learning_starts"]),
             batch_size=int(cfg["batch_size"]), tau=cfg["tau"], gamma=cfg["gamma"],
             train_freq=int(cfg["train_freq"]), gradient_steps=int(cfg["gradient_steps"]),
-            ent_coef=cfg["ent_coef"], bound_values=bool(cfg.get("bound_values", True)),
+            ent_coef=cfg["ent_coef"], bound_values=trust_settings(cfg)["bound_values"],
             policy_kwargs=policy_kwargs)
     raise ValueError(f"unknown algorithm {algo!r}: use dqn or sac")

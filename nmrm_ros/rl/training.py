@@ -179,8 +179,16 @@ def value_bound_high(model) -> float | None:
 
 def make_keeper(cfg: dict) -> PolicyKeeper | None:
     """The config's policy keeper (`keep_every` episodes a snapshot; 0: keep the last policy)."""
-    every = int(cfg.get("keep_every", 0) or 0)
+    from .config import trust_settings
+
+    every = trust_settings(cfg)["keep_every"]
     return PolicyKeeper(every) if every > 0 else None
+
+
+def end_of_run(curve: LearningCurve, model, keeper: PolicyKeeper | None):
+    """(the kept snapshot or None for the last policy, the collapse report) of a finished run."""
+    kept = keeper.kept() if keeper is not None else None
+    return kept, collapse_report(curve, value_bound_high(model), kept.episode if kept else None)
 
 
 @dataclass
@@ -246,8 +254,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
         model.learn(total_timesteps=episodes * info.episode_length, callback=callback, progress_bar=progress)
     seconds = time.perf_counter() - t0
     keeper = callback.keeper
-    kept = keeper.kept() if keeper is not None else None
-    report = collapse_report(callback.curve, value_bound_high(model), kept.episode if kept else None)
+    kept, report = end_of_run(callback.curve, model, keeper)
     # a loop swaps models: the kept policy goes with the one it acted on (`PolicyKeeper.retag`)
     policy_checkpoint = (kept.tag if kept is not None else keeper.tag) if keeper is not None else None
     policy_checkpoint = policy_checkpoint or (str(checkpoint) if checkpoint is not None else None)
