@@ -58,3 +58,24 @@ def test_each_member_of_a_plateau_ensemble_trains_as_it_would_alone():
     assert [h["lr_factor"][1] for h in together.history][:single.epochs_run] == \
         [h["lr_factor"][0] for h in single.history]
     np.testing.assert_allclose(together.best_val_loss[1], single.best_val_loss[0], rtol=1e-4)
+
+
+def test_only_progress_by_min_improvement_resets_the_clocks():
+    """With min_improvement 0.2 an epoch counts as progress only when its validation loss is 20%
+    below the last progress epoch's: the run stops `patience` epochs after its last progress even
+    while it still creeps down, and keeps its best weights all the same."""
+    ds = make_toy_dataset("toggle_switch", 400, seed=0)
+    train, val, _ = split_indices(len(ds), 0)
+    base = dict(schedule="constant", max_epochs=60, patience=5)
+    config = model_config("csc_lstm", "toggle_switch", 2)
+    strict = train_ensemble(init_ensemble(config, [0]), ds, [(train, val)],
+                            load_train_config("toggle_switch", min_improvement=0.2, **base), progress=False)
+    losses = [h["val_loss"][0] for h in strict.history]
+    last, progress = np.inf, []
+    for epoch, loss in enumerate(losses, start=1):
+        if loss < last * 0.8:
+            last, progress = loss, progress + [epoch]
+    assert strict.epochs_run == progress[-1] + 5  # 5 epochs past the last 20% step, not past the best
+    assert strict.best_val_loss[0] == pytest.approx(min(losses))  # the best weights: any improvement
+    with pytest.raises(ValueError, match="min_improvement"):
+        load_train_config("toggle_switch", min_improvement=1.0)

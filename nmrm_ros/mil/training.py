@@ -19,6 +19,10 @@ Learning-rate schedule: linear warm-up over `warmup_epochs`, then
   every member is done (`max_epochs` is only a safety limit). A member's factor scales its Adam
   update (Adam's step is proportional to lr, weight decay included), so each member still trains
   exactly as it would alone; a done member is frozen. `grad_clip` > 0 clips each member's gradient norm.
+Progress: the clocks (patience, and the plateau's cuts) restart only at an epoch whose validation
+loss is below the last such epoch's by more than the fraction `min_improvement` (0: any new best);
+the best weights are kept on any improvement. So creeping down by a fraction of a percent an epoch
+does not hold a run open, and "still improving" at the cap means progress within the last `patience` epochs.
 `label_swap` = p > 0 trains on noisy labels (paper Sec. 5.2): a fraction p of each member's
 training labels, and of its validation labels, are swapped between trajectories
 (`nmrm_ros.datasets.label_noise`; seeded by the member's seed); the test split stays clean.
@@ -88,7 +92,7 @@ class TrainConfig:
     return_scale: float = 1.0
     normalisation: str = "standard"
     seed: int = 0
-    threads: int = 1
+    threads: int = 0  # torch threads while training; 0: torch's own setting (every core unless the process set fewer)
     schedule: str = "constant"  # constant | cosine | plateau
     warmup_epochs: int = 0
     min_lr_ratio: float = 0.0
@@ -105,6 +109,7 @@ class TrainConfig:
     served_state: str = "h_tanh_c"  # what the model serves by default (recorded in its checkpoint; mil.served_state)
     plateau_patience: int = 10  # schedule plateau: epochs without a new best before the lr is cut
     plateau_factor: float = 0.5  # schedule plateau: the cut
+    min_improvement: float = 0.0  # progress: validation loss below the last progress epoch's by this fraction (resets the clocks)
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
     prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.train_and_evaluate)
@@ -140,7 +145,7 @@ class TrainConfig:
                  ("max_epochs", self.max_epochs >= 1, ">= 1"), ("batch_size", self.batch_size >= 1, ">= 1"),
                  ("return_scale", self.return_scale > 0, "> 0"),
                  ("normalisation", self.normalisation in ("standard", "minmax"), "standard or minmax"),
-                 ("threads", self.threads >= 1, ">= 1"),
+                 ("threads", self.threads >= 0, ">= 0 (0: torch's own setting)"),
                  ("schedule", self.schedule in SCHEDULES, " or ".join(SCHEDULES)),
                  ("warmup_epochs", self.warmup_epochs >= 0, ">= 0"),
                  ("min_lr_ratio", 0 <= self.min_lr_ratio <= 1, "in [0, 1]"),
@@ -149,6 +154,7 @@ class TrainConfig:
                  ("reward_l1", self.reward_l1 >= 0, ">= 0"), ("members", self.members >= 1, ">= 1"),
                  ("plateau_patience", self.plateau_patience >= 1, ">= 1"),
                  ("plateau_factor", 0 < self.plateau_factor < 1, "in (0, 1)"),
+                 ("min_improvement", 0 <= self.min_improvement < 1, "in [0, 1)"),
                  ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h"),
                  ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
                  ("preference_weight", self.preference_weight > 0, "> 0"),
@@ -478,7 +484,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         if any(len(va) == 0 for _, va in pair_rows):
             raise ValueError(f"too few comparisons to validate on ({min(len(tr) for tr, _ in pair_rows)} "
                              f"to train on, none left for validation): give at least 10")
-    torch.set_num_threads(cfg.threads)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
     torch.manual_seed(seeds[0])
     ens.seed_dropout(seeds)  # each member's masks from its own seed: a member is its own run
     for m, (tr, _) in enumerate(splits):
@@ -521,6 +528,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     steps_per_epoch = max(steps_returns, steps_prefs)
     best_mse = np.full(K, np.inf)
     best_epoch = np.zeros(K, dtype=int)
+    progress_loss = np.full(K, np.inf)  # the loss at each member's last epoch of progress
+    progress_epoch = np.zeros(K, dtype=int)
     best_state = [ens.member_state(m) for m in range(K)]
     history = []
     plateau = cfg.schedule == "plateau"
@@ -577,12 +586,14 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         entry["lr"] = optimiser.param_groups[0]["lr"]
         history.append(entry)
         stop = on_epoch is not None and on_epoch(dict(history[-1], seconds=time.perf_counter() - start))
-        improved = np.flatnonzero(val_loss < best_mse)
-        for m in improved:
+        for m in np.flatnonzero(val_loss < best_mse):  # the best weights: any improvement
             best_mse[m], best_epoch[m] = val_loss[m], epoch
             best_state[m] = ens.member_state(int(m))
+        # progress (what resets the clocks): below the last progress by more than min_improvement
+        improved = np.flatnonzero(val_loss < progress_loss * (1.0 - cfg.min_improvement))
+        progress_loss[improved], progress_epoch[improved] = val_loss[improved], epoch
         if plateau:
-            _plateau_update(factors, since_cut, improved, epoch - best_epoch, cfg)
+            _plateau_update(factors, since_cut, improved, epoch - progress_epoch, cfg)
             history[-1]["lr_factor"] = factors.tolist()  # each member's, for the next epoch
         if bar is not None:
             bar.update(1)
@@ -591,16 +602,16 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             else:
                 bar.set_postfix(val_loss_median=f"{np.median(val_loss):.4f}",
                                 worst_member_best=f"{best_mse.max():.4f}")
-        if stop or np.all(epoch - best_epoch >= cfg.patience) or (plateau and not bool(factors.any())):
+        if stop or np.all(epoch - progress_epoch >= cfg.patience) or (plateau and not bool(factors.any())):
             break
     if bar is not None:
         bar.close()
     for m in range(K):
         ens.load_member_state(m, best_state[m])
     ens.eval()
-    # at the epoch limit with a new best within the patience (plateau: not yet converged)
+    # at the epoch limit with progress within the patience (plateau: not yet converged)
     still_improving = [bool(epoch - b < cfg.patience and (not plateau or factors[m] > 0))
-                       for m, b in enumerate(best_epoch)]
+                       for m, b in enumerate(progress_epoch)]
     return EnsembleTrainResult(best_epoch.tolist(), best_mse.tolist(), still_improving, epoch,
                                time.perf_counter() - start, history)
 
