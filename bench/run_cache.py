@@ -30,7 +30,10 @@ def stale_settings(recorded: dict | None, cfg) -> list[str]:
         then = {f.name: f.default for f in fields(cfg) if f.default is not MISSING} | then
     else:
         then = {k: v for k, v in RL_SETTINGS_BEFORE.items() if k in today} | then
-    return [f"{k} {v!r} -> {today[k]!r}" for k, v in then.items() if k in today and today[k] != v]
+    from nmrm_ros.mil.training import EXECUTION_SETTINGS  # how fast, not what: never stale
+
+    return [f"{k} {v!r} -> {today[k]!r}" for k, v in then.items()
+            if k in today and today[k] != v and k not in EXECUTION_SETTINGS]
 
 
 def stale_rl_settings(recorded: dict | None, task: str, **overrides) -> list[str]:
