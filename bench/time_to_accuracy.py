@@ -134,7 +134,7 @@ def report(tags: list) -> str:
     lines = ["# bench/time_to_accuracy.py: `nmrm train --data <data seed s> --seed s --split-seed s`, wall time on "
              "this machine; held-out: data seed 999; worst [median] over the seeds",
              f"{'task':12s} {'tag':10s} {'seeds':12s} {'wall s':>14s} {'held-out return MSE':>22s} "
-             f"{'held-out reward MSE':>22s}  paper bars  still improving at the cap"]
+             f"{'held-out reward MSE':>22s}  paper bars  epochs  still improving at the cap"]
     for task in TASKS:
         for tag in tags:
             files = sorted((RESULTS / tag).glob(f"{task}_s*.json"))
@@ -146,9 +146,10 @@ def report(tags: list) -> str:
             rew = [r["held_reward_mse"] for r in rs]
             bars = f"{_bar(PAPER_RETURN, task):.3g} / {_bar(PAPER_REWARD, task):.3g}" if task in NAV else "-"
             still = [r["data_seed"] for r in rs if r.get("still_improving") and any(r["still_improving"])]
+            epochs = max((r.get("epochs") or 0) for r in rs)
             lines.append(f"{task:12s} {tag:10s} {str([r['data_seed'] for r in rs]):12s} "
                          f"{max(w):6.0f} [{np.median(w):5.0f}] {max(ret):10.4f} [{np.median(ret):8.4f}] "
-                         f"{max(rew):10.5f} [{np.median(rew):8.5f}]  {bars:>10s}  {still or ''}")
+                         f"{max(rew):10.5f} [{np.median(rew):8.5f}]  {bars:>10s}  {epochs:6d}  {still or ''}")
     return "\n".join(lines)
 
 
