@@ -6,8 +6,8 @@
     .venv/bin/python bench/time_to_accuracy.py --tag mi01 --set min_improvement=0.01   # the defaults, one changed
     .venv/bin/python bench/time_to_accuracy.py --report
 
-Run (task, s): a screened dataset of data seed s (navigation: 5000 episodes; your-own-task
-examples: 2000, MountainCar 3000) is written once to runs/time_to_accuracy/data/; then
+Run (task, s): a screened dataset of data seed s (navigation: 5000 episodes, in the benches' cache
+runs/data/; your-own-task examples: 2000, MountainCar 3000, in runs/time_to_accuracy/data/) is written once; then
 `nmrm train --data <it> --seed s --split-seed s` runs as a child process with the task's defaults
 (config/mil_training.yaml, or that file as it was at --config-at), on whatever cores the machine
 has, and its wall time is what is reported: process start, data loading, training and the test
@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reproduce_tables import PAPER_RETURN, PAPER_REWARD, parse_overrides
+from reproduce_tables import CACHE, PAPER_RETURN, PAPER_REWARD, load_dataset, parse_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "time_to_accuracy"
@@ -59,16 +59,17 @@ def dataset_file(task: str, seed: int, held_out: bool = False) -> Path:
     """The task's dataset of data seed `seed` (written on first use)."""
     from nmrm_ros.datasets import generate_screened
 
-    if task in NAV:
-        spec, oracle, n = task, None, (2000 if held_out else 5000)
-    else:
-        spec, oracle, n_train, n_held = OWN[task]
-        n = n_held if held_out else n_train
+    if task in NAV:  # the benches' shared cache (runs/data/), regenerated when its generator changed
+        n = 2000 if held_out else 5000
+        load_dataset(task, n, seed)
+        return CACHE / f"{task}_n{n}_s{seed}.npz"
+    spec, oracle, n_train, n_held = OWN[task]
+    n = n_held if held_out else n_train
     path = RUNS / "data" / f"{task}_n{n}_s{seed}.npz"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
-        generate_screened(spec, n, seed=seed, **({"oracle": oracle} if oracle else {})).save(path)
+        generate_screened(spec, n, seed=seed, oracle=oracle).save(path)
         print(f"# {path.name}: generated in {time.perf_counter() - t0:.0f} s", flush=True)
     return path
 
