@@ -13,6 +13,9 @@ whose weights are block-diagonal (member m's gates only see member m's features 
 the recurrence stays in torch's fused kernel. Gradients reach only the diagonal blocks, so training
 the sum of the members' losses with Adam is K independent trainings done in one pass.
 
+What the head sees and how its outputs become rewards is the architecture's rule
+(`architectures.REGISTRY`); `_forward` branches on nothing else.
+
 Normalisation buffers are per member (each member may train on its own split). `serving_member`
 is the member whose hidden state the online model publishes (the best on validation).
 
@@ -44,6 +47,7 @@ class MILEnsemble(nn.Module):
         self.config = config
         self.members = int(members)
         template = build_model(config)
+        self.architecture = template.architecture  # the rule: architectures.REGISTRY
         self.uses_lstm = template.uses_lstm
         self.hidden_size = template.hidden_size
         self.params = nn.ParameterDict({
@@ -193,28 +197,34 @@ class MILEnsemble(nn.Module):
             self._step_masks = None  # a step's masks are valid for this forward only
 
     def _forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
-        """forward() of (K, B, T, d) instances and (K, B) lengths."""
+        """forward() of (K, B, T, d) instances and (K, B) lengths: features, [LSTM,] head, then
+        the architecture's rule (`architectures.REGISTRY`)."""
         K, B, T, d = x.shape
         mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
         f = self._features(x.reshape(K, B * T, d))
-        arch = self.config.architecture
-        if arch == "instance_nn":
-            rewards = self._head_out(f).view(K, B, T) * mask
-            return MILOutput(rewards.sum(-1), rewards, x.new_zeros(K, B, T, 0))
-        hidden = self._lstm(f.view(K, B, T, -1))
-        flat_hidden = hidden.reshape(K, B * T, -1)
-        if arch == "embedding_lstm":
-            partial = self._head_out(flat_hidden).view(K, B, T)
-            previous = torch.cat([partial.new_zeros(K, B, 1), partial[..., :-1]], dim=-1)
-            rewards = (partial - previous) * mask
-            last = (lengths - 1).clamp(min=0)
-            returns = partial.gather(-1, last[..., None]).squeeze(-1) * (lengths > 0).to(x.dtype)
-            return MILOutput(returns, rewards, hidden * mask[..., None])
-        if arch == "csc_lstm":
-            rewards = self._head_out(torch.cat([f, flat_hidden], dim=-1)).view(K, B, T) * mask
-        else:  # instance_lstm
-            rewards = self._head_out(flat_hidden).view(K, B, T) * mask
-        return MILOutput(rewards.sum(-1), rewards, hidden * mask[..., None])
+        hidden = self._lstm(f.view(K, B, T, -1)) if self.uses_lstm else None  # (K, B, T, k)
+        flat_hidden = None if hidden is None else hidden.reshape(K, B * T, -1)
+        y = self._head_out(self.architecture.head_input(f, flat_hidden)).view(K, B, T)
+        returns, rewards = self.architecture.outputs(y, mask, lengths)
+        if hidden is None:
+            return MILOutput(returns, rewards, x.new_zeros(K, B, T, 0))
+        return MILOutput(returns, rewards, hidden * mask[..., None])
+
+    def layers(self, member: int | None = None) -> dict:
+        """The weights by part, detached: {"feature_extractor": [(W (K, out, in), b (K, out)), ...],
+        "head": [...], and with an LSTM "lstm": {"weight_ih" (K, 4k, F), "weight_hh" (K, 4k, k),
+        "bias_ih", "bias_hh" (K, 4k), "h0", "c0" (K, k)}} (torch's gate order [i | f | g | o]);
+        `member`: that member's only, without the member axis."""
+        pick = (lambda t: t.detach()) if member is None else (lambda t: t.detach()[member])
+        p = self.params
+        out = {part: [(pick(p[_key(f"{part}.{n}.weight")]), pick(p[_key(f"{part}.{n}.bias")]))
+                      for n in names]
+               for part, names in (("feature_extractor", self._fe), ("head", self._head))}
+        if self.uses_lstm:
+            out["lstm"] = {name: pick(p[key]) for name, key in (
+                ("weight_ih", "lstm__weight_ih_l0"), ("weight_hh", "lstm__weight_hh_l0"),
+                ("bias_ih", "lstm__bias_ih_l0"), ("bias_hh", "lstm__bias_hh_l0"), ("h0", "h0"), ("c0", "c0"))}
+        return out
 
 
 def member_steps(lengths: torch.Tensor) -> list:

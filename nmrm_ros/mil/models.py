@@ -11,13 +11,8 @@ NN). Inputs are normalised inside the model ((x - input_shift) / input_scale, bu
 the training split), and outputs are in the units of the labels (`return_scale` multiplies the
 network's output; Lunar Lander trains on returns / 100).
 
-Architectures:
-- InstanceSpaceNN (Markovian baseline, mi-Net): r_t = HN(FE(x_t)).
-- EmbeddingSpaceLSTM: g_t = HN(h'_{t+1}) is the partial return after t + 1 instances; the return
-  is g at the last instance; rewards are r_t = g_t - g_{t-1} with g_{-1} = 0 (the paper's
-  post-hoc g'_0 = 0 rule, in 0-based steps).
-- InstanceSpaceLSTM: r_t = HN(h'_{t+1}).
-- CSCInstanceSpaceLSTM: r_t = HN([FE(x_t), h'_{t+1}]) (concatenated skip connection).
+The architectures' rules (what the head sees, how its outputs become rewards and a return) are
+defined once, in `architectures.REGISTRY`; this module holds one member's layers.
 The LSTM has a learnable initial state (h'_0, c'_0).
 """
 
@@ -30,15 +25,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from .architectures import REGISTRY, architecture
 from .dropout import dropout_mask
 
-ARCHITECTURES = ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
-ARCHITECTURE_NAMES = {
-    "instance_nn": "Instance Space NN",
-    "embedding_lstm": "Embedding Space LSTM",
-    "instance_lstm": "Instance Space LSTM",
-    "csc_lstm": "CSC Instance Space LSTM",
-}
+ARCHITECTURES = tuple(REGISTRY)
+ARCHITECTURE_NAMES = {name: arch.title for name, arch in REGISTRY.items()}
 
 
 @dataclass(frozen=True)
@@ -130,13 +121,16 @@ def _mlp(sizes: list, dropout: float, final_linear: bool) -> nn.Sequential:
 
 
 class MILRewardModel(nn.Module):
-    """Base class: normalisation buffers, feature extractor, head, and the bag/step API."""
-
-    uses_lstm = True
+    """One member of any architecture: normalisation buffers, feature extractor, [LSTM,] head;
+    the architecture's rule from `architectures.REGISTRY`. The package computes with
+    `MILEnsemble`s; this is the reference layout of one member (its parameter names are a
+    checkpoint's) and the initialisation `init_ensemble` copies."""
 
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         self.config = config
+        self.architecture = architecture(config.architecture)
+        self.uses_lstm = self.architecture.uses_lstm
         self.register_buffer("input_shift", torch.zeros(config.input_size))
         self.register_buffer("input_scale", torch.ones(config.input_size))
         self.register_buffer("return_scale", torch.ones(()))
@@ -150,7 +144,7 @@ class MILRewardModel(nn.Module):
 
     @property
     def head_input_size(self) -> int:
-        return self.config.hidden_size
+        return self.architecture.head_input_size(self.feature_size, self.config.hidden_size)
 
     @property
     def hidden_size(self) -> int:
@@ -177,65 +171,14 @@ class MILRewardModel(nn.Module):
         return out
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
-        raise NotImplementedError
-
-
-def _mask(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
-    return (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).to(x.dtype)
-
-
-class InstanceSpaceNN(MILRewardModel):
-    uses_lstm = False
-
-    @property
-    def head_input_size(self) -> int:
-        return self.feature_size
-
-    def forward(self, x, lengths):
-        mask = _mask(x, lengths)
-        rewards = self._head(self._features(x)) * mask
-        return MILOutput(rewards.sum(1), rewards, x.new_zeros(x.shape[0], x.shape[1], 0))
-
-
-class EmbeddingSpaceLSTM(MILRewardModel):
-    def forward(self, x, lengths):
-        mask = _mask(x, lengths)
-        hidden = self._lstm(self._features(x))
-        partial = self._head(hidden)  # g_t, (B, T)
-        previous = torch.cat([partial.new_zeros(partial.shape[0], 1), partial[:, :-1]], dim=1)
-        rewards = (partial - previous) * mask
-        last = (lengths - 1).clamp(min=0)
-        returns = partial.gather(1, last[:, None]).squeeze(1) * (lengths > 0).to(x.dtype)
-        return MILOutput(returns, rewards, hidden * mask[..., None])
-
-
-class InstanceSpaceLSTM(MILRewardModel):
-    def forward(self, x, lengths):
-        mask = _mask(x, lengths)
-        hidden = self._lstm(self._features(x))
-        rewards = self._head(hidden) * mask
-        return MILOutput(rewards.sum(1), rewards, hidden * mask[..., None])
-
-
-class CSCInstanceSpaceLSTM(MILRewardModel):
-    @property
-    def head_input_size(self) -> int:
-        return self.feature_size + self.config.hidden_size
-
-    def forward(self, x, lengths):
-        mask = _mask(x, lengths)
+        mask = (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).to(x.dtype)
         features = self._features(x)
-        hidden = self._lstm(features)
-        rewards = self._head(torch.cat([features, hidden], dim=-1)) * mask
-        return MILOutput(rewards.sum(1), rewards, hidden * mask[..., None])
-
-
-MODEL_CLASSES = {
-    "instance_nn": InstanceSpaceNN,
-    "embedding_lstm": EmbeddingSpaceLSTM,
-    "instance_lstm": InstanceSpaceLSTM,
-    "csc_lstm": CSCInstanceSpaceLSTM,
-}
+        hidden = self._lstm(features) if self.uses_lstm else None
+        y = self._head(self.architecture.head_input(features, hidden))
+        returns, rewards = self.architecture.outputs(y, mask, lengths)
+        if hidden is None:
+            return MILOutput(returns, rewards, x.new_zeros(x.shape[0], x.shape[1], 0))
+        return MILOutput(returns, rewards, hidden * mask[..., None])
 
 
 def family_of(task: str) -> str:
@@ -252,8 +195,8 @@ def model_config(architecture: str, task: str, input_size: int, dropout: float =
                  fe_sizes=None, head_sizes=None) -> ModelConfig:
     """The paper's configuration of `architecture` for `task`'s family (output_activation: None or
     "" for the family's; fe_sizes / head_sizes: layer widths, None for the family's)."""
-    if architecture not in ARCHITECTURES:
-        raise ValueError(f"unknown architecture {architecture!r}; known: {', '.join(ARCHITECTURES)}")
+    if architecture not in REGISTRY:
+        raise ValueError(f"unknown architecture {architecture!r}; known: {', '.join(REGISTRY)}")
     sizes = dict(FAMILY_SIZES[family_of(task)])
     if fe_sizes is not None:
         sizes["fe_sizes"] = tuple(int(w) for w in fe_sizes)
@@ -269,6 +212,5 @@ def model_config(architecture: str, task: str, input_size: int, dropout: float =
 
 
 def build_model(config: ModelConfig) -> MILRewardModel:
-    if config.architecture not in MODEL_CLASSES:
-        raise ValueError(f"unknown architecture {config.architecture!r}; known: {', '.join(ARCHITECTURES)}")
-    return MODEL_CLASSES[config.architecture](config)
+    """One freshly initialised member of `config` (ValueError for an unknown architecture)."""
+    return MILRewardModel(config)

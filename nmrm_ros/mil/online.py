@@ -18,22 +18,15 @@ import numpy as np
 import torch
 from torch import nn
 
+from .architectures import lstm_cell
 from .ensemble import MILEnsemble, as_ensemble
 from .models import MILRewardModel
 from .served_state import DEFAULT_SERVED_STATE, check_served_state, served_size, served_states
 
 
-def _arrays(tensor: torch.Tensor, single: bool) -> np.ndarray:
-    """A float64 copy; without its leading member axis when the ensemble has one member."""
-    a = tensor.detach().double().numpy().copy()
-    return a[0] if single else a
-
-
-def _stacked_linear(ens: MILEnsemble, prefix: str, names: list, single: bool) -> list:
-    """[(W (K, out, in), b (K, out))] float64 of each Linear layer of `prefix` ((out, in), (out,)
-    for one member)."""
-    return [(_arrays(ens.params[f"{prefix}__{name}__weight"], single),
-             _arrays(ens.params[f"{prefix}__{name}__bias"], single)) for name in names]
+def _arrays(tensor: torch.Tensor) -> np.ndarray:
+    """A float64 NumPy copy."""
+    return tensor.detach().double().numpy().copy()
 
 
 class OnlineRewardModel:
@@ -54,24 +47,26 @@ class OnlineRewardModel:
         self.members = ens.members
         self.serving = int(ens.serving_member)
         self.architecture = cfg.architecture
+        self.rule = ens.architecture  # architectures.REGISTRY: what the head sees, its outputs' rule
         self.input_size = cfg.input_size
         # one member: arrays without the member axis, plain matrix-vector products (a stacked
         # matmul costs twice as much per call, and this runs once per observation)
         single = self.members == 1
-        self.shift = _arrays(ens.input_shift, single)  # (K, d) or (d,)
-        self.scale = _arrays(ens.input_scale, single)
+        layers = ens.layers(0 if single else None)
+        self.shift = _arrays(ens.input_shift[0] if single else ens.input_shift)  # (K, d) or (d,)
+        self.scale = _arrays(ens.input_scale[0] if single else ens.input_scale)
         self.return_scale = float(ens.return_scale)
         self.activation = cfg.output_activation
-        self.fe = _stacked_linear(ens, "feature_extractor", ens._fe, single)
-        self.head = _stacked_linear(ens, "head", ens._head, single)
+        self.fe = [(_arrays(w), _arrays(b)) for w, b in layers["feature_extractor"]]
+        self.head = [(_arrays(w), _arrays(b)) for w, b in layers["head"]]
         self.uses_lstm = ens.uses_lstm
         self.k = ens.hidden_size  # the LSTM's hidden size (0: no LSTM)
         self.served_size = served_size(self.k, served)
         if self.uses_lstm:
-            p = {n: _arrays(v, single) for n, v in ens.params.items()}
-            self.w_ih = p["lstm__weight_ih_l0"]  # (K, 4k, F)
-            self.w_hh = p["lstm__weight_hh_l0"]  # (K, 4k, k)
-            self.bias = p["lstm__bias_ih_l0"] + p["lstm__bias_hh_l0"]  # (K, 4k)
+            p = {n: _arrays(v) for n, v in layers["lstm"].items()}
+            self.w_ih = p["weight_ih"]  # (K, 4k, F)
+            self.w_hh = p["weight_hh"]  # (K, 4k, k)
+            self.bias = p["bias_ih"] + p["bias_hh"]  # (K, 4k)
             self.h0, self.c0 = p["h0"], p["c0"]  # (K, k)
         self.reset()
 
@@ -136,26 +131,14 @@ class OnlineRewardModel:
             raise ValueError("state contains NaN or inf")
         f = self._fe(x)  # (K, F)
         self.t += 1
-        if not self.uses_lstm:
-            rewards = self._out(f)
-        else:
+        hidden = None
+        if self.uses_lstm:
             gates = self._apply(self.w_ih, self.bias, f) + self._apply(self.w_hh, None, self.states_h)
-            k = self.k
-            i = 1.0 / (1.0 + np.exp(-gates[..., :k]))
-            fg = 1.0 / (1.0 + np.exp(-gates[..., k:2 * k]))
-            g = np.tanh(gates[..., 2 * k:3 * k])
-            o = 1.0 / (1.0 + np.exp(-gates[..., 3 * k:]))
-            self.states_c = fg * self.states_c + i * g
-            self.states_h = o * np.tanh(self.states_c)
+            self.states_h, self.states_c = lstm_cell(gates, self.states_c)
             self._serve()
-            if self.architecture == "embedding_lstm":
-                partial = self._out(self.states_h)
-                rewards = partial - self.previous_partial
-                self.previous_partial = partial
-            elif self.architecture == "csc_lstm":
-                rewards = self._out(np.concatenate([f, self.states_h], axis=-1))
-            else:
-                rewards = self._out(self.states_h)
+            hidden = self.states_h
+        rewards, self.previous_partial = self.rule.step_rewards(
+            self._out(self.rule.head_input(f, hidden)), self.previous_partial)
         self.rewards = rewards
         self.partial_returns += rewards
         if self.members == 1:  # no spread to compute (np.std is ~5 µs a call)

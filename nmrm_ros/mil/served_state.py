@@ -57,33 +57,30 @@ def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
                   kind: str = DEFAULT_SERVED_STATE) -> np.ndarray:
     """Served states (N, T, served_size) of trajectories `states` (N, T, d) float (zero beyond
     each length). `model`: a `MILEnsemble` (its serving member's state) or a `MILRewardModel`."""
-    from .ensemble import as_ensemble
+    from .architectures import lstm_cell
+    from .ensemble import MILEnsemble, as_ensemble
 
     check_served_state(kind)
     ens = as_ensemble(model)
-    model = ens.member(int(ens.serving_member))
+    serving = MILEnsemble.from_members([ens.member(int(ens.serving_member))]).eval()
     x = torch.as_tensor(np.asarray(states, np.float32))
     n, t = x.shape[:2]
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
-    if not model.uses_lstm:
+    if not serving.uses_lstm:
         return np.zeros((n, t, 0))
-    h = model(x, lens).hidden.double()  # (N, T, k) h'_{t+1}, zero beyond each length
+    h = serving(x, lens).hidden[0].double().numpy()  # (N, T, k) h'_{t+1}, zero beyond each length
     if kind == "h":
-        return h.numpy()
-    k = model.hidden_size
-    f = model._features(x).double()
-    lstm = model.lstm
-    previous = torch.cat([model.h0.double().expand(n, 1, k), h[:, :-1]], dim=1)  # h'_t
-    gates = (f @ lstm.weight_ih_l0.double().T + lstm.bias_ih_l0.double()
-             + previous @ lstm.weight_hh_l0.double().T + lstm.bias_hh_l0.double())
-    i, fg = torch.sigmoid(gates[..., :k]), torch.sigmoid(gates[..., k:2 * k])
-    g = torch.tanh(gates[..., 2 * k:3 * k])
-    c = torch.zeros(n, t, k, dtype=torch.float64)
-    cell = model.c0.double().expand(n, k)
-    for step in range(t):
-        cell = fg[:, step] * cell + i[:, step] * g[:, step]
+        return h
+    lstm = {name: v.double().numpy() for name, v in serving.layers(0)["lstm"].items()}
+    f = serving._features(x[None].reshape(1, n * t, -1))[0].double().numpy().reshape(n, t, -1)
+    previous = np.concatenate([np.broadcast_to(lstm["h0"], (n, 1, h.shape[-1])), h[:, :-1]], axis=1)  # h'_t
+    gates = (f @ lstm["weight_ih"].T + lstm["bias_ih"] + previous @ lstm["weight_hh"].T + lstm["bias_hh"])
+    c = np.zeros_like(h)
+    cell = np.broadcast_to(lstm["c0"], h[:, 0].shape)
+    for step in range(t):  # the cell's recursion on the forward's h' (the online stepper's cell)
+        _, cell = lstm_cell(gates[:, step], cell)
         c[:, step] = cell
-    mask = (torch.arange(t)[None, :] < lens[:, None]).double()[..., None]
+    mask = (np.arange(t)[None, :] < lens.numpy()[:, None])[..., None]
     if kind == "h_tanh_c":
-        c = torch.tanh(c)
-    return torch.cat([h, c * mask], dim=-1).numpy()
+        c = np.tanh(c)
+    return np.concatenate([h, c * mask], axis=-1)
