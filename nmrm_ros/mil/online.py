@@ -70,6 +70,36 @@ class OnlineRewardModel:
             self.h0, self.c0 = p["h0"], p["c0"]  # (K, k)
         self.reset()
 
+    #: the checkpoint's metadata (`from_checkpoint`); {} for a stepper built from a model
+    meta: dict = {}
+
+    @classmethod
+    def from_checkpoint(cls, path, task: str | None = None, served: str | None = None,
+                        state_size: int | None = None) -> "OnlineRewardModel":
+        """The served model of a checkpoint: the one way the nodes, the agents' wrappers and
+        relabelling get one. task: refuse a checkpoint of another task (None: any; the stepper's
+        `task` is the checkpoint's); served: what it serves (None: the checkpoint's own training
+        config's `served_state`); state_size: refuse a model of other states. `meta` holds the
+        checkpoint's metadata. CheckpointError or ValueError (one line) for anything amiss."""
+        from .checkpoint import load_checkpoint
+        from .served_state import checkpoint_served_state
+
+        model, meta = load_checkpoint(path, task=task)
+        try:
+            stepper = cls(model, served=served or checkpoint_served_state(meta))
+        except ValueError as exc:
+            raise ValueError(f"checkpoint {path}: {exc}") from None
+        if state_size is not None and stepper.input_size != state_size:
+            raise ValueError(f"checkpoint {path} takes states of size {stepper.input_size}, task "
+                             f"{meta.get('task')} has {state_size}")
+        stepper.meta = meta
+        return stepper
+
+    @property
+    def task(self) -> str | None:
+        """The task of the checkpoint it was loaded from (None: built from a model)."""
+        return self.meta.get("task")
+
     def reset(self) -> None:
         """Start a new trajectory: h' = h'_0, c' = c'_0, g_{-1} = 0, returns so far 0."""
         K = self.members

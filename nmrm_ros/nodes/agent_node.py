@@ -358,16 +358,14 @@ class Learner:
         name = checkpoint_paths(wanted)[0].with_suffix("").name
         if name not in {env.source for env in self.envs}:
             return  # the reward model serves it from its next episode start
-        from ..mil import CheckpointError, OnlineRewardModel, load_checkpoint
-        from ..mil.served_state import checkpoint_served_state
+        from ..mil import CheckpointError, OnlineRewardModel
         from ..rl.replay_relabel import relabel_replay_buffer
 
         self.relabelled = wanted
         log = self.node.get_logger()
         try:
-            model, meta = load_checkpoint(wanted, task=self.task)
-            stepper = OnlineRewardModel(model, served=checkpoint_served_state(meta))
             d = self.node.info.state_size
+            stepper = OnlineRewardModel.from_checkpoint(wanted, task=self.task, state_size=d)
             width = self.model.observation_space.shape[0]
             if self.use_hidden and width != d + stepper.served_size:
                 raise ValueError(f"it serves {stepper.served_size} hidden values, the agent observes {width - d}")

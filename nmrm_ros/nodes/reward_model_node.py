@@ -109,24 +109,18 @@ class RewardModelNode(Node):
 
     def _load(self, path: str, task: str | None):
         """(online stepper, task info, '') of a checkpoint, or (None, None, why not)."""
-        from ..mil import CheckpointError, OnlineRewardModel, load_checkpoint
+        from ..mil import CheckpointError, OnlineRewardModel
 
         try:
-            model, meta = load_checkpoint(path, task=task)
-            info = require_task(meta["task"])
+            stepper = OnlineRewardModel.from_checkpoint(path, task=task, served=self.served)
+            info = require_task(stepper.task)
+            if stepper.input_size != info.state_size:  # a checkpoint's task of another size
+                raise ValueError(f"checkpoint takes states of size {stepper.input_size}, task "
+                                 f"{stepper.task} has {info.state_size}")
         except (CheckpointError, ValueError, NodeError) as exc:
             return None, None, str(exc)
-        if model.config.input_size != info.state_size:
-            return None, None, (f"checkpoint takes states of size {model.config.input_size}, task "
-                                f"{meta['task']} has {info.state_size}")
-        if self.served is None:
-            from ..mil.served_state import checkpoint_served_state
-
-            try:
-                self.served = checkpoint_served_state(meta)
-            except ValueError as exc:
-                return None, None, f"checkpoint {path}: {exc}"
-        return OnlineRewardModel(model, served=self.served), info, ""
+        self.served = stepper.served
+        return stepper, info, ""
 
     def _reload(self, value) -> str:
         """A new `checkpoint` set while running: load and check it now, serve it from the next

@@ -146,20 +146,20 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
 
     def __init__(self, env: gym.Env, model, task: str | None = None,
                  served: str | None = None, oracle: str = "") -> None:
-        from ..mil import OnlineRewardModel, load_checkpoint
-        from ..mil.served_state import checkpoint_served_state
+        from ..mil import OnlineRewardModel
+        from ..mil.served_state import DEFAULT_SERVED_STATE
 
-        meta: dict = {}
         if isinstance(model, (str, Path)):
-            model, meta = load_checkpoint(model, task=task)
-            task = task or meta["task"]
-        served = served or checkpoint_served_state(meta)
+            online = OnlineRewardModel.from_checkpoint(model, task=task, served=served)
+            task = task or online.task
+        else:
+            online = OnlineRewardModel(model, served=served or DEFAULT_SERVED_STATE)
         if task is None:
             raise ValueError("RewardModelWrapper needs the task (for the oracle's judgement)")
-        online = OnlineRewardModel(model, served=served)
         if online.input_size != env.observation_space.shape[0]:
             raise ValueError(f"the model takes states of size {online.input_size}, the env gives "
                              f"{env.observation_space.shape[0]}")
+        served = online.served
         judge = make_oracle(task, oracle) if oracle else task
         super().__init__(env, online, judge, augment=True, hidden_size=online.served_size)
         self.served = served
@@ -170,11 +170,12 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
         from now on, with the same served state, which must have the same size (the observation
         space does not change); the episode in progress is re-stepped (`swap_stepper`).
         Returns the current observation under the new model."""
-        from ..mil import OnlineRewardModel, load_checkpoint
+        from ..mil import OnlineRewardModel
 
         if isinstance(model, (str, Path)):
-            model, _ = load_checkpoint(model, task=self.task)
-        online = OnlineRewardModel(model, served=self.served)
+            online = OnlineRewardModel.from_checkpoint(model, task=self.task, served=self.served)
+        else:
+            online = OnlineRewardModel(model, served=self.served)
         if online.served_size != self.stepper.served_size or online.input_size != self.stepper.input_size:
             raise ValueError(f"the new model serves {online.served_size} values for states of size "
                              f"{online.input_size}; the agent observes {self.stepper.served_size} for "
