@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from torch import nn
 
 from .architectures import lstm_cell
 from .ensemble import MILEnsemble, as_ensemble

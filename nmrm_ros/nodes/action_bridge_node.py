@@ -15,12 +15,11 @@ from __future__ import annotations
 import math
 import time
 
-from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation
 
-from ..ros.diagnostics import Diagnostics
-from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters, exit_with_upstream, run_node
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
@@ -32,11 +31,13 @@ PARAMETERS = {
 WARN_EVERY_S = 5.0
 
 
-class ActionBridgeNode(Node):
+class ActionBridgeNode(NmrmNode):
+    executable = "action_bridge"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
-        super().__init__("action_bridge")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from geometry_msgs.msg import Twist, TwistStamped
 
         from ..ros.robot_spec import load_robot_spec
@@ -60,15 +61,13 @@ class ActionBridgeNode(Node):
         self.warned_at = 0.0
         subs = [self.create_subscription(AgentAction, ACTION, self.on_action, STEP_QOS),
                 self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)]
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, subs)
+        self.exit_with_upstream(subs)
         self.create_timer(1.0 / self.spec.action_rate, self.on_tick)
         self.get_logger().info(
             f"actions -> {self.kind.__name__} on {self.spec.action_topic} at {self.spec.action_rate:g} Hz "
             f"({'table of ' + str(len(self.spec.discrete)) + ' actions' if self.spec.discrete else 'fields ' + ', '.join(self.spec.continuous_fields)}); "
             f"zero twist after {self.spec.action_timeout:g} s without an action and at each episode's end")
-        self.diagnostics = Diagnostics(
-            self, lambda: {"dropped_actions": self.dropped, "safe_stops": self.stops},
+        self.diagnose(lambda: {"dropped_actions": self.dropped, "safe_stops": self.stops},
             warn=lambda: f"{self.dropped} action(s) dropped" if self.dropped else None)
 
     def on_action(self, msg: AgentAction) -> None:
@@ -121,7 +120,7 @@ class ActionBridgeNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(ActionBridgeNode, "action_bridge", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return ActionBridgeNode.main(args)
 
 
 if __name__ == "__main__":

@@ -44,14 +44,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep, TrajectoryReturn
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.messages import as_vector
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, live_parameter, require_task, run_node)
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param,
+                             live_parameter, require_task)
 from ..ros.topics import ACTION, OBSERVATION, REWARD_STEP, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -87,12 +86,14 @@ def robot_topic(robot: str, topic: str) -> str:
     return f"/{robot.strip('/')}/{topic}" if robot.strip("/") else topic
 
 
-class AgentNode(Node):
+class AgentNode(NmrmNode):
+    executable = "agent"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
         self.messages_received = 0
-        super().__init__("agent")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         self.info = require_task(p["task"])
         self.discrete = self.info.discrete and not p["continuous"]
         self.rng = np.random.default_rng(int(p["seed"]))
@@ -138,10 +139,8 @@ class AgentNode(Node):
                     EnvObservation, robot_topic(robot, OBSERVATION),
                     lambda m, i=i: self.act(m, m.state, i), STEP_QOS))
         self.sub = self.subs[0]
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.subs)
-        self.diagnostics = Diagnostics(
-            self, lambda: {"actions": self.sent, "dropped": self.dropped, "policy": self.policy},
+        self.exit_with_upstream(self.subs)
+        self.diagnose(lambda: {"actions": self.sent, "dropped": self.dropped, "policy": self.policy},
             rate_of="actions", warn=lambda: f"{self.dropped} observation(s) without an action" if self.dropped else None)
 
     def _load_sb3(self, path: str, algo: str):
@@ -446,7 +445,7 @@ class Learner:
 
 
 def main(args=None) -> int:
-    return run_node(AgentNode, "agent", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return AgentNode.main(args)
 
 
 if __name__ == "__main__":

@@ -35,14 +35,13 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from rclpy.node import Node
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, TrajectoryReturn
 from ..tasks import NAVIGATION_TASKS
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.messages import as_vector, to_float_list
-from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node, subscribed_nodes
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import NodeError, Param, require_task, subscribed_nodes
 from ..ros.topics import ACTION, FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -68,10 +67,13 @@ PARAMETERS = {
 }
 
 
-class EnvSimNode(Node):
+class EnvSimNode(NmrmNode):
+    executable = "env_sim"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        super().__init__("env_sim")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from ..tasks import make_env
         from ..tasks.frames import FRAME_FORMATS
 
@@ -127,18 +129,17 @@ class EnvSimNode(Node):
         self.sent_at = 0.0
         self.dropped = 0
         self.steps_total = 0
-        self.exit_code = None
         self.started = False
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"task {self.task}, seed {self.seed}, episodes {self.episodes or 'forever'}; "
                                f"waiting for {self.wait_for} subscriber(s) "
                                f"{sorted(self.wait_for_nodes) or ''}")
 
-    # -- lifecycle -----------------------------------------------------------------------------
-        self.diagnostics = Diagnostics(
-            self, lambda: {"episode": self.episode, "steps": self.steps_total, "abandoned_episodes": self.abandoned,
-                           "dropped_actions": self.dropped}, rate_of="steps", hardware_id=self.task,
+        self.diagnose(lambda: {"episode": self.episode, "steps": self.steps_total, "abandoned_episodes": self.abandoned,
+            "dropped_actions": self.dropped}, rate_of="steps", hardware_id=self.task,
             warn=lambda: f"{self.abandoned_in_a_row} episode(s) abandoned in a row" if self.abandoned_in_a_row else None)
+
+    # -- lifecycle -----------------------------------------------------------------------------
     def on_timer(self) -> None:
         now = time.monotonic()
         if not self.started:
@@ -329,7 +330,7 @@ class EnvSimNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(EnvSimNode, "env_sim", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return EnvSimNode.main(args)
 
 
 if __name__ == "__main__":

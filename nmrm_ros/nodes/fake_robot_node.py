@@ -14,10 +14,9 @@ import math
 import time
 
 import numpy as np
-from rclpy.node import Node
 
-from ..ros.diagnostics import Diagnostics
-from ..ros.node_main import EXIT_WITH_UPSTREAM, Param, declare_parameters, exit_with_upstream, run_node
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import Param
 
 PARAMETERS = {
     "exit_with_upstream": Param(False, "exit (code 0) once cmd_vel had a publisher and has none left"),
@@ -30,11 +29,13 @@ PARAMETERS = {
 }
 
 
-class FakeRobotNode(Node):
+class FakeRobotNode(NmrmNode):
+    executable = "fake_robot"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
-        super().__init__("fake_robot")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from geometry_msgs.msg import Twist
         from nav_msgs.msg import Odometry
         from rclpy.qos import qos_profile_sensor_data
@@ -57,13 +58,12 @@ class FakeRobotNode(Node):
         self.odom_pub = self.create_publisher(Odometry, "odom", qos_profile_sensor_data)
         self.scan_pub = self.create_publisher(LaserScan, "scan", qos_profile_sensor_data)
         sub = self.create_subscription(Twist, "cmd_vel", self.on_cmd, 10)
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, sub)
+        self.exit_with_upstream(sub)
         self.create_service(Empty, "~/reset", self.on_reset)
         self.create_timer(self.dt, self.on_tick)
         self.get_logger().info(f"a unicycle in a {delivery.SIZE:g} m box at {p['rate']:g} Hz: odom, scan, "
                                f"cmd_vel, ~/reset")
-        self.diagnostics = Diagnostics(self, lambda: {"resets": self.resets})
+        self.diagnose(lambda: {"resets": self.resets})
 
     def _start(self) -> tuple:
         return (*self.delivery.START, float(self.rng.uniform(-math.pi, math.pi)))
@@ -103,7 +103,7 @@ class FakeRobotNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(FakeRobotNode, "fake_robot", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return FakeRobotNode.main(args)
 
 
 if __name__ == "__main__":

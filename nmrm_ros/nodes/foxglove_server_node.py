@@ -18,13 +18,12 @@ import secrets
 import time
 from urllib.parse import quote
 
-from rclpy.node import Node
 
 from ..ros.diagnostics import TOPIC as DIAGNOSTICS
-from ..ros.diagnostics import Diagnostics
 from ..ros.field_paths import message_class
 from ..ros.msg_schema import ros2msg_schema
-from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters, exit_with_upstream, run_node
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 DEFAULT_TOPICS = ["/nmrm/viz/arena", "/nmrm/viz/pose", "/nmrm/viz/path", "/nmrm/viz/reward",
@@ -56,16 +55,18 @@ def matching_qos(publishers: list):
     return qos
 
 
-class FoxgloveServerNode(Node):
+class FoxgloveServerNode(NmrmNode):
+    executable = "foxglove_server"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
         from ..labelling.web_app import WebServer
         from ..viewer.foxglove_server import FoxgloveServer
 
-        self.exit_code = None
         self.messages_received = 0  # of the upstream topics (exit_with_upstream), /diagnostics not counted
         self.forwarded = 0
-        super().__init__("foxglove_server")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         self.wanted = [t if t.startswith("/") else self.resolve_topic_name(t) for t in p["topics"]]
         self.served: dict = {}  # topic -> (channel id, subscription)
         self.subs: list = []  # the subscriptions, as topics appear
@@ -87,11 +88,9 @@ class FoxgloveServerNode(Node):
         self.get_logger().info(f"Foxglove: {url}  (open in the web app: https://app.foxglove.dev/?ds=foxglove-websocket"
                                f"&ds.url={quote(url, safe='')}; layout config/foxglove/nmrm_layout.json)")
         self.create_timer(float(p["discovery_period"]), self.discover)
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.subs)
-        self.diagnostics = Diagnostics(
-            self, lambda: {"clients": len(self.server.clients), "refused_connections": self.server.refused,
-                           "channels": len(self.served), "messages": self.forwarded},
+        self.exit_with_upstream(self.subs)
+        self.diagnose(lambda: {"clients": len(self.server.clients), "refused_connections": self.server.refused,
+            "channels": len(self.served), "messages": self.forwarded},
             rate_of="messages")
         self.discover()
 
@@ -134,7 +133,7 @@ class FoxgloveServerNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(FoxgloveServerNode, "foxglove_server", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return FoxgloveServerNode.main(args)
 
 
 if __name__ == "__main__":

@@ -34,20 +34,19 @@ Simulated label noise, seeded by `noise_seed`: `label_noise` "gaussian" adds Gau
 from __future__ import annotations
 
 import numpy as np
-from rclpy.node import Node
 
 import math
 from collections import deque
 
 from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryPreference, TrajectoryReturn
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
 from ..datasets.label_noise import OnlineLabelSwapper
 from ..datasets.preference_teacher import SimulatedTeacher
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param, declare_parameters,
-                             exit_with_upstream, require_oracle, require_task, run_node)
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param,
+                             require_oracle, require_task)
 from ..ros.topics import OBSERVATION, ORACLE_STEP, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -72,12 +71,14 @@ PARAMETERS = {
 }
 
 
-class LabellerOracleNode(Node):
+class LabellerOracleNode(NmrmNode):
+    executable = "labeller_oracle"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
         self.messages_received = 0
-        super().__init__("labeller_oracle")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         self.info = require_task(p["task"])
         self.task = p["task"]
         self.oracle = require_oracle(self.task, p["oracle"])
@@ -113,11 +114,9 @@ class LabellerOracleNode(Node):
         self.pref_pub = self.create_publisher(TrajectoryPreference, TRAJECTORY_PREFERENCE, STEP_QOS)
         self.step_pub = self.create_publisher(OracleStep, ORACLE_STEP, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.sub)
-        self.diagnostics = Diagnostics(
-            self, lambda: {"steps": self.messages_received, "labelled_episodes": self.labelled,
-                           "comparisons": self.compared, "broken_episodes": self.follower.broken_episodes},
+        self.exit_with_upstream(self.sub)
+        self.diagnose(lambda: {"steps": self.messages_received, "labelled_episodes": self.labelled,
+            "comparisons": self.compared, "broken_episodes": self.follower.broken_episodes},
             rate_of="steps",
             warn=lambda: f"{self.follower.broken_episodes} broken episode(s)" if self.follower.broken_episodes else None)
 
@@ -198,7 +197,7 @@ class LabellerOracleNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(LabellerOracleNode, "labeller_oracle", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return LabellerOracleNode.main(args)
 
 
 if __name__ == "__main__":

@@ -54,15 +54,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from sensor_msgs.msg import CompressedImage
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.node_main import (NodeError, Param, declare_parameters, exit_with_upstream, live_parameter,
-                             require_task, run_node)
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import (NodeError, Param, live_parameter,
+                             require_task)
 from ..ros.topics import FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
@@ -92,12 +91,14 @@ PARAMETERS = {
 }
 
 
-class LabellerWebNode(Node):
+class LabellerWebNode(NmrmNode):
+    executable = "labeller_web"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
         self.messages_received = 0
-        super().__init__("labeller_web")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from ..labelling import FrameStore, LabelQueue, LabelStore, WaitingEpisodes, WebServer, make_app
         from ..labelling.label_store import WAITING_DIR
 
@@ -184,10 +185,9 @@ class LabellerWebNode(Node):
             self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller person/{person}, "
                                    f"{len(self.queue.done_before[person])} episode(s) labelled before, "
                                    f"labels to {self.stores[person].path})")
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.sub)
-        self.diagnostics = Diagnostics(self, lambda: {"steps": self.messages_received,
-                                                     "finished_episodes": self.finished}, rate_of="steps")
+        self.exit_with_upstream(self.sub)
+        self.diagnose(lambda: {"steps": self.messages_received,
+            "finished_episodes": self.finished}, rate_of="steps")
 
     def _offer_waiting_episodes(self, max_episodes: int) -> None:
         """Queue the unlabelled episodes an earlier run of this node kept."""
@@ -353,7 +353,7 @@ class LabellerWebNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(LabellerWebNode, "labeller_web", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return LabellerWebNode.main(args)
 
 
 if __name__ == "__main__":

@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import time
 
-from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.messages import to_float_list
-from ..ros.node_main import NodeError, Param, declare_parameters, require_task, run_node
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import NodeError, Param, require_task
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
@@ -47,11 +46,13 @@ PARAMETERS = {
 WARN_EVERY_S = 5.0
 
 
-class ObservationBridgeNode(Node):
+class ObservationBridgeNode(NmrmNode):
+    executable = "observation_bridge"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
-        super().__init__("observation_bridge")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from std_srvs.srv import Empty, Trigger
 
         from ..ros.field_paths import message_class
@@ -103,11 +104,11 @@ class ObservationBridgeNode(Node):
             f", by ~/end_episode")
         self.waiting = self.auto_start  # the first episode starts once the subscribers are there
 
-    # -- inputs ------------------------------------------------------------------------------------
-        self.diagnostics = Diagnostics(
-            self, lambda: {"episode": self.episode, "stale_ticks": self.stale_ticks,
-                           **{f"dropped {i.topic}": n for i, n in zip(self.spec.inputs, self.dropped)}},
+        self.diagnose(lambda: {"episode": self.episode, "stale_ticks": self.stale_ticks,
+            **{f"dropped {i.topic}": n for i, n in zip(self.spec.inputs, self.dropped)}},
             warn=lambda: f"{self.stale_ticks} stale tick(s)" if self.stale_ticks else None)
+
+    # -- inputs ------------------------------------------------------------------------------------
     def on_input(self, i: int, msg) -> None:
         try:
             values = self.spec.inputs[i].read(msg)
@@ -243,7 +244,7 @@ def _qos(name: str):
 
 
 def main(args=None) -> int:
-    return run_node(ObservationBridgeNode, "observation_bridge", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return ObservationBridgeNode.main(args)
 
 
 if __name__ == "__main__":

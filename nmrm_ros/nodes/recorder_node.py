@@ -12,16 +12,13 @@ rest of a launch failed at start) is removed at close, so it leaves no empty bag
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
-from rclpy.node import Node
 
 from ..bags.schemas import TOPIC_TYPES, split_topic
 from ..bags.writer import BagWriter
-from ..ros.diagnostics import Diagnostics
 from ..ros.field_paths import message_class
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, NodeError, Param, declare_parameters,
-                             exit_with_upstream, run_node)
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param
 from ..ros.topics import STEP_QOS
 
 PARAMETERS = {
@@ -37,14 +34,16 @@ PARAMETERS = {
 }
 
 
-class RecorderNode(Node):
+class RecorderNode(NmrmNode):
+    executable = "recorder"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
         self.messages_received = 0
         self.first_write = self.last_write = None  # perf_counter() of the first / last write
         self.bag = None
-        super().__init__("recorder")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         output = p["output"] or time.strftime("bags/recording_%Y%m%d_%H%M%S", time.gmtime())
         topics = [ns.rstrip("/") + "/" + t.lstrip("/") if ns else t
                   for ns in (p["namespaces"] or [""]) for t in p["topics"]]
@@ -78,11 +77,10 @@ class RecorderNode(Node):
         self.observation_wait = float(p["observation_wait"])
         self.pending_timer = self.create_timer(0.05, self._subscribe_observations) if self.pending else None
         self.create_timer(float(p["flush_period"]), self.bag.flush)
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.subs)
+        self.exit_with_upstream(self.subs)
         self.get_logger().info(f"recording {len(resolved)} topic(s) to {output}")
-        self.diagnostics = Diagnostics(self, lambda: {"messages": self.messages_received, "bag": output},
-                                       rate_of="messages")
+        self.diagnose(lambda: {"messages": self.messages_received, "bag": output},
+            rate_of="messages")
 
     def _subscribe(self, topic: str, name: str, type_name: str) -> None:
         cb = (lambda data, n=name, t=type_name: self.on_message(n, t, data))
@@ -130,7 +128,7 @@ class RecorderNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(RecorderNode, "recorder", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return RecorderNode.main(args)
 
 
 if __name__ == "__main__":

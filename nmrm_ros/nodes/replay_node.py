@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import time
 
-from rclpy.node import Node
 
 from ..bags.reader import BagError, bag_summary, iter_raw
-from ..ros.diagnostics import Diagnostics
 from ..ros.field_paths import message_class
-from ..ros.node_main import NodeError, Param, declare_parameters, run_node, subscribed_nodes
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import NodeError, Param, subscribed_nodes
 from ..ros.topics import STEP_QOS
 
 RETRY_TIMEOUT_S = 60.0  # a full writer history: how long to wait for subscribers to take messages
@@ -37,11 +36,13 @@ PARAMETERS = {
 }
 
 
-class ReplayNode(Node):
+class ReplayNode(NmrmNode):
+    executable = "replay"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
-        super().__init__("replay")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         if not p["bag"]:
             raise NodeError("parameter bag is required")
         self.path = p["bag"]
@@ -68,8 +69,8 @@ class ReplayNode(Node):
         self.timer = self.create_timer(0.05, self.on_timer)
         self.get_logger().info(f"replaying {self.path}: {', '.join(self.topics)} "
                                f"(rate {self.rate or 'as fast as subscribers take'})")
-        self.diagnostics = Diagnostics(self, lambda: {"messages": self.published, "retries": self.retries},
-                                       rate_of="messages")
+        self.diagnose(lambda: {"messages": self.published, "retries": self.retries},
+            rate_of="messages")
 
     def on_timer(self) -> None:
         if self.messages is not None:
@@ -164,7 +165,7 @@ class ReplayNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(ReplayNode, "replay", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return ReplayNode.main(args)
 
 
 if __name__ == "__main__":

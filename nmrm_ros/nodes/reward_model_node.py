@@ -35,15 +35,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation, RewardStep
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
-from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param, declare_parameters,
-                             exit_with_upstream, live_parameter, require_oracle, require_task, run_node)
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param,
+                             live_parameter, require_oracle, require_task)
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
 
 PARAMETERS = {
@@ -60,12 +59,14 @@ PARAMETERS = {
 }
 
 
-class RewardModelNode(Node):
+class RewardModelNode(NmrmNode):
+    executable = "reward_model"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
         self.messages_received = 0
-        super().__init__("reward_model")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         mode = p["mode"]
         if mode == "oracle":
             if not p["task"]:
@@ -98,13 +99,11 @@ class RewardModelNode(Node):
         self.compute_s: list = []
         self.pub = self.create_publisher(RewardStep, REWARD_STEP, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, self.sub)
+        self.exit_with_upstream(self.sub)
         served = f", serving [s_t, {self.served}]" if mode == "model" else ""
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}{served}")
-        self.diagnostics = Diagnostics(
-            self, lambda: {"steps": self.messages_received, "broken_episodes": self.follower.broken_episodes,
-                           "mode": self.mode, "model": self.source}, rate_of="steps", hardware_id=self.task,
+        self.diagnose(lambda: {"steps": self.messages_received, "broken_episodes": self.follower.broken_episodes,
+            "mode": self.mode, "model": self.source}, rate_of="steps", hardware_id=self.task,
             warn=lambda: f"{self.follower.broken_episodes} broken episode(s)" if self.follower.broken_episodes else None)
 
     def _load(self, path: str, task: str | None):
@@ -183,7 +182,7 @@ class RewardModelNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(RewardModelNode, "reward_model", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return RewardModelNode.main(args)
 
 
 if __name__ == "__main__":

@@ -34,14 +34,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 
-from ..ros.diagnostics import Diagnostics
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.node_main import NodeError, Param, declare_parameters, exit_with_upstream, require_task, run_node
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import NodeError, Param, require_task
 from ..ros.topics import OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -78,11 +77,13 @@ def _die_with_parent() -> None:
         pass
 
 
-class TrainerNode(Node):
+class TrainerNode(NmrmNode):
+    executable = "trainer"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
-        super().__init__("trainer")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from ..labelling.training_set import TrainingSet
         from ..mil.models import ARCHITECTURES
 
@@ -115,8 +116,7 @@ class TrainerNode(Node):
             subs.append(self.create_subscription(TrajectoryPreference, TRAJECTORY_PREFERENCE, self.on_comparison,
                                                  STEP_QOS))
         self.upstream_gone = False
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, subs, on_gone=self._upstream_left)
+        self.exit_with_upstream(subs, on_gone=self._upstream_left)
         self.create_timer(0.5, self.poll)
         self.get_logger().info(
             f"task {self.task}: retraining a {p['members']}-member {p['architecture']} from {p['feedback']} every "
@@ -125,9 +125,10 @@ class TrainerNode(Node):
             f"comparison(s) from bags; next version "
             f"{self._name(self.version + 1)} in {self.out_dir}, warm-started from {self.latest or 'nothing'}")
 
+        self.diagnose(lambda: {"model_version": self.version, "new_labels": self.new_labels,
+            "latest": self.latest or ""})
+
     # -- inputs ------------------------------------------------------------------------------------
-        self.diagnostics = Diagnostics(self, lambda: {"model_version": self.version, "new_labels": self.new_labels,
-                                                     "latest": self.latest or ""})
     def _wanted(self, labeller: str) -> bool:
         if not self.labellers:
             return True
@@ -335,7 +336,7 @@ class TrainerNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(TrainerNode, "trainer", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return TrainerNode.main(args)
 
 
 if __name__ == "__main__":

@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import math
 
-from rclpy.node import Node
 
 from nmrm_msgs.msg import EnvObservation, RewardStep
 
-from ..ros.diagnostics import Diagnostics
-from ..ros.node_main import EXIT_WITH_UPSTREAM, Param, declare_parameters, exit_with_upstream, require_task, run_node
+from ..ros.node_base import NmrmNode
+from ..ros.node_main import EXIT_WITH_UPSTREAM, Param, require_task
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
 
 PARAMETERS = {
@@ -38,12 +37,14 @@ PARAMETERS = {
 VIZ = "nmrm/viz/"
 
 
-class VisualizerNode(Node):
+class VisualizerNode(NmrmNode):
+    executable = "visualizer"
+    PARAMETERS = PARAMETERS
+
     def __init__(self) -> None:
-        self.exit_code = None
         self.messages_received = 0
-        super().__init__("visualizer")
-        p = declare_parameters(self, PARAMETERS)
+        super().__init__()
+        p = self.params
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import Path
         from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -73,11 +74,9 @@ class VisualizerNode(Node):
         self.source = ""
         subs = [self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS),
                 self.create_subscription(RewardStep, REWARD_STEP, self.on_reward, STEP_QOS)]
-        if p["exit_with_upstream"]:
-            exit_with_upstream(self, subs)
-        self.diagnostics = Diagnostics(
-            self, lambda: {"steps": self.steps, "episodes": self.episodes, "broken_episodes": self.broken,
-                           "model": self.source}, rate_of="steps", hardware_id=self.task,
+        self.exit_with_upstream(subs)
+        self.diagnose(lambda: {"steps": self.steps, "episodes": self.episodes, "broken_episodes": self.broken,
+            "model": self.source}, rate_of="steps", hardware_id=self.task,
             warn=lambda: f"{self.broken} broken episode(s)" if self.broken else None)
         if self.arena is not None:
             self.arena_pub.publish(self.markers())
@@ -151,7 +150,7 @@ class VisualizerNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(VisualizerNode, "visualizer", __doc__.strip().splitlines()[0], PARAMETERS, args)
+    return VisualizerNode.main(args)
 
 
 if __name__ == "__main__":

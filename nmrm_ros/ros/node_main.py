@@ -1,4 +1,4 @@
-"""Entry-point helper shared by every node executable.
+"""Entry-point helper shared by every node executable (the nodes are `node_base.NmrmNode`s).
 
 Each node module declares its parameters once, in a `PARAMETERS` table of
 `name -> Param(default, description)`; the node declares them from the table, and `--help` prints
@@ -132,10 +132,9 @@ def _help(prog: str, description: str, table: dict) -> str:
 
 def run_node(make_node: Callable, prog: str, description: str, table: dict,
              argv: list | None = None, on_spin: Callable | None = None) -> int:
-    """Create the node with `make_node()` and spin it until shutdown; returns an exit code.
-
-    The node may call `node.finish(code)` (see `FinishingNode`) to end the process itself.
-    """
+    """Create the node with `make_node()` (an `NmrmNode`: `node_base`) and spin it until
+    shutdown or until it sets its `exit_code` (`finish`); then `close()` it; returns the exit code.
+    `NmrmNode.main` calls this."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.utilities import remove_ros_args
@@ -169,17 +168,21 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
     signal.signal(signal.SIGTERM, _stop)
     try:
         node = make_node()
+        from .node_base import NmrmNode
+
+        if not isinstance(node, NmrmNode):
+            raise TypeError(f"{prog}: run_node runs an NmrmNode, got {type(node).__name__}")
         _warn_about_namesakes(node)
         executor = _executor()
         executor.add_node(node)
         armed = 0.0
-        while rclpy.ok() and stop["signal"] is None and getattr(node, "exit_code", None) is None:
+        while rclpy.ok() and stop["signal"] is None and node.exit_code is None:
             now = time.monotonic()
             if now - armed > 1.0:  # re-arm the stall watchdog about once a second
                 faulthandler.dump_traceback_later(SPIN_STALL_S, exit=False)
                 armed = now
             executor.spin_once(timeout_sec=0.1)
-        code = getattr(node, "exit_code", None) or 0
+        code = node.exit_code or 0
     except NodeError as exc:
         print(f"[{prog}] error: {exc}", file=sys.stderr)
         code = 2
@@ -191,9 +194,7 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         stopping = time.monotonic()
         if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()  # the node's own files (bags, checkpoints) are complete after this
+            node.close()  # the node's own files (bags, checkpoints) are complete after this
         # Bound what follows: a hang in the executor's shutdown or in flushing is a failure (exit 1,
         # every thread's stack on stderr; SHUTDOWN_LIMIT_S).
         left = SHUTDOWN_LIMIT_S - (time.monotonic() - stopping)
@@ -308,9 +309,9 @@ def exit_with_upstream(node, subscriptions, period: float = 0.2, on_gone=None) -
 
     def check() -> None:
         count = sum(s.get_publisher_count() for s in subs)
-        if count > 0 or getattr(node, "messages_received", 0) > 0:
+        if count > 0 or node.messages_received > 0:
             state["seen"] = True
-        if state["seen"] and count == 0 and getattr(node, "exit_code", None) is None and not state.get("gone"):
+        if state["seen"] and count == 0 and node.exit_code is None and not state.get("gone"):
             state["gone"] = True
             if on_gone is not None:
                 on_gone()

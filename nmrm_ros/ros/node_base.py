@@ -1,0 +1,78 @@
+"""`NmrmNode`: the base class of every node of the package — the protocol `run_node` drives.
+
+    class FakeRobotNode(NmrmNode):
+        executable = "fake_robot"          # `ros2 run nmrm_ros fake_robot`, and the node's name
+        PARAMETERS = PARAMETERS            # name -> Param(default, description[, minimum])
+
+        def __init__(self) -> None:
+            super().__init__()             # declares PARAMETERS (checked): self.params
+            sub = self.create_subscription(Twist, "cmd_vel", self.on_cmd, 10)
+            self.exit_with_upstream(sub)   # if the parameter exit_with_upstream is set
+            self.diagnose(lambda: {"resets": self.resets})   # /diagnostics
+
+        def close(self) -> None: ...       # files complete: called once at shutdown
+
+    def main(args=None) -> int:
+        return FakeRobotNode.main(args)    # the executable's entry point
+
+A node ends the process by `finish(code)` (the spin loop stops after the current callback, then
+`close()`, flush and teardown: `node_main.run_node`); a `NodeError` raised in `__init__` is a
+one-line error and exit code 2. The executable's --help is the module docstring's first line and
+the parameter table.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+from rclpy.node import Node
+
+from .node_main import declare_parameters, exit_with_upstream, run_node
+
+
+class NmrmNode(Node):
+    """An rclpy node with the package's protocol: checked parameters, exit code, diagnostics,
+    leaving with its upstream, close, main."""
+
+    #: the executable's name (`ros2 run nmrm_ros <executable>`), also the node's default name
+    executable: str = ""
+    #: name -> Param of the node's ROS parameters
+    PARAMETERS: dict = {}
+    #: messages taken from the input topic(s) (counts a producer seen by `exit_with_upstream`)
+    messages_received: int = 0
+
+    def __init__(self, node_name: str | None = None, **kwargs) -> None:
+        #: None while running; the process's exit code once the node is done (`finish`)
+        self.exit_code: int | None = None
+        self.diagnostics = None
+        super().__init__(node_name or self.executable, **kwargs)
+        #: the declared parameters' values (name -> value), checked against their Params
+        self.params: dict = declare_parameters(self, self.PARAMETERS)
+
+    def finish(self, code: int = 0) -> None:
+        """End the process with `code` once the current callback returns (a first call wins)."""
+        if self.exit_code is None:
+            self.exit_code = int(code)
+
+    def exit_with_upstream(self, subscriptions, on_gone: Callable | None = None) -> None:
+        """If the parameter `exit_with_upstream` is set: end (code 0) when `subscriptions` had
+        publishers and have none left, or call `on_gone()` then (`node_main.exit_with_upstream`)."""
+        if self.params.get("exit_with_upstream"):
+            exit_with_upstream(self, subscriptions, on_gone=on_gone)
+
+    def diagnose(self, values: Callable[[], dict], **kwargs) -> None:
+        """Publish `values()` (and rate_of / warn / hardware_id: `ros.diagnostics.Diagnostics`)
+        on /diagnostics."""
+        from .diagnostics import Diagnostics
+
+        self.diagnostics = Diagnostics(self, values, **kwargs)
+
+    def close(self) -> None:
+        """Release the node's files and children (called once at shutdown, before teardown)."""
+
+    @classmethod
+    def main(cls, args: list | None = None) -> int:
+        """Run the node as its executable until it finishes or is stopped; the exit code."""
+        doc = (sys.modules[cls.__module__].__doc__ or cls.executable).strip().splitlines()[0]
+        return run_node(cls, cls.executable, doc, cls.PARAMETERS, args)
