@@ -44,6 +44,9 @@ class Architecture:
     name = "instance_nn"
     title = "Instance Space NN"
     uses_lstm = False
+    #: r_t is the head's output y_t (so an affine map of the head's last layer maps the rewards:
+    #: `mil.calibration`); False where rewards are differences of the head's outputs
+    reward_is_head_output = True
 
     def head_input_size(self, feature_size: int, hidden_size: int) -> int:
         return feature_size
@@ -99,6 +102,7 @@ class EmbeddingSpaceLSTM(InstanceSpaceLSTM):
 
     name = "embedding_lstm"
     title = "Embedding Space LSTM"
+    reward_is_head_output = False
 
     def outputs(self, y, mask, lengths):
         previous = torch.cat([y.new_zeros(*y.shape[:-1], 1), y[..., :-1]], dim=-1)

@@ -27,11 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .architectures import REGISTRY
 from .data import BagTensors, TrajectoryDataset
 from .ensemble import MILEnsemble, _key
 
 #: architectures whose per-step reward is the reward head's last linear layer (times return_scale)
-CALIBRATABLE = ("csc_lstm", "instance_nn", "instance_lstm")
+CALIBRATABLE = tuple(name for name, arch in REGISTRY.items() if arch.reward_is_head_output)
 
 
 class CalibrationError(ValueError):
