@@ -42,7 +42,7 @@ def main() -> None:
            f"episodes:={args.episodes}", f"mode:={args.mode}", f"checkpoint:={checkpoint or ''}"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=3600).stdout
     done = re.search(r"done: (\d+) episodes, (\d+) steps in ([\d.]+) s \((\d+) steps/s\)", out)
-    compute = re.search(r"compute per step: median ([\d.]+) µs, p99 ([\d.]+) µs", out)
+    compute = re.search(r"compute per step(?: \(the last \d+\))?: median ([\d.]+) µs, p99 ([\d.]+) µs", out)
     if not done or not compute:
         raise SystemExit(f"graph run failed:\n{out}")
     print(f"# graph loop: env_sim -> reward_model ({args.mode}) -> agent (random), labeller_oracle "

@@ -32,6 +32,7 @@ for it until the next step 0 (a wrong hidden state is never served).
 from __future__ import annotations
 
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,9 @@ from ..ros.node_base import NmrmNode
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param,
                              live_parameter, require_oracle, require_task)
 from ..ros.topics import OBSERVATION, REWARD_STEP, STEP_QOS
+
+#: steps whose compute time is kept for the summary at exit (a node may serve for days)
+COMPUTE_WINDOW = 100_000
 
 PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
@@ -96,7 +100,8 @@ class RewardModelNode(NmrmNode):
         live_parameter(self, PARAMETERS, "checkpoint", self._reload)
         self.follower = EpisodeFollower()
         self.last: RewardStep | None = None
-        self.compute_s: list = []
+        self.compute_s: deque = deque(maxlen=COMPUTE_WINDOW)  # the last steps' compute times (s)
+        self.steps_computed = 0
         self.pub = self.create_publisher(RewardStep, REWARD_STEP, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         self.exit_with_upstream(self.sub)
@@ -162,6 +167,7 @@ class RewardModelNode(NmrmNode):
                                         f"waiting for the next step 0")
             return
         self.compute_s.append(time.perf_counter() - t0)
+        self.steps_computed += 1
         if msg.terminated or msg.truncated:
             self.follower.finish()
         out = RewardStep(episode=msg.episode, step=msg.step, state=list(msg.state),
@@ -177,7 +183,8 @@ class RewardModelNode(NmrmNode):
     def close(self) -> None:
         if self.compute_s:
             us = np.asarray(self.compute_s) * 1e6
-            self.get_logger().info(f"{len(us)} steps, compute per step: median {np.median(us):.1f} µs, "
+            window = f" (the last {len(us)})" if len(us) < self.steps_computed else ""
+            self.get_logger().info(f"{self.steps_computed} steps, compute per step{window}: median {np.median(us):.1f} µs, "
                                    f"p99 {np.percentile(us, 99):.1f} µs; {self.follower.broken_episodes} broken episode(s)")
 
 
