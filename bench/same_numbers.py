@@ -76,12 +76,20 @@ def main() -> None:
         print(f"wrote {len(out)} arrays to {a.save}")
         return
     before = np.load(a.compare)
+    if set(before.files) != set(out):
+        sys.exit(f"same_numbers: the runs hold different quantities: only before {sorted(set(before.files) - set(out))}, "
+                 f"only now {sorted(set(out) - set(before.files))}")
     changed = 0
     for k in before.files:
-        diff = float(np.abs(before[k] - out[k]).max()) if before[k].size else 0.0
-        if diff > 0:
-            print(f"{k}: largest difference {diff:.3g}")
-            changed += not _rounding_allowed(k)
+        old, new = before[k], out[k]
+        if old.shape != new.shape or not np.array_equal(old, new, equal_nan=True):
+            diff = float(np.nanmax(np.abs(old - new))) if old.shape == new.shape and old.size else float("nan")
+            print(f"{k}: " + (f"largest difference {diff:.3g}" if old.shape == new.shape
+                              else f"shape {old.shape} before, {new.shape} now")
+                  + (", NaN where the other has a number" if old.shape == new.shape and
+                     (np.isnan(old) != np.isnan(new)).any() else ""))
+            exact_ok = old.shape == new.shape and not (np.isnan(old) != np.isnan(new)).any()
+            changed += not (exact_ok and _rounding_allowed(k))
     print(f"{len(before.files)} arrays compared; {changed} training/forward/online results differ")
     sys.exit(1 if changed else 0)
 

@@ -41,6 +41,8 @@ class OnlineRewardModel:
 
     def __init__(self, model: MILRewardModel | MILEnsemble, served: str = DEFAULT_SERVED_STATE) -> None:
         self.served = check_served_state(served)
+        #: the checkpoint's metadata (`from_checkpoint`); {} for a stepper built from a model
+        self.meta: dict = {}
         ens = as_ensemble(model).eval()
         cfg = ens.config
         self.members = ens.members
@@ -68,9 +70,6 @@ class OnlineRewardModel:
             self.bias = p["bias_ih"] + p["bias_hh"]  # (K, 4k)
             self.h0, self.c0 = p["h0"], p["c0"]  # (K, k)
         self.reset()
-
-    #: the checkpoint's metadata (`from_checkpoint`); {} for a stepper built from a model
-    meta: dict = {}
 
     @classmethod
     def from_checkpoint(cls, path, task: str | None = None, served: str | None = None,

@@ -62,7 +62,8 @@ def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
 
     check_served_state(kind)
     ens = as_ensemble(model)
-    serving = MILEnsemble.from_members([ens.member(int(ens.serving_member))]).eval()
+    with torch.random.fork_rng(devices=[]):  # building the one-member view draws fresh weights: not from the caller's stream
+        serving = MILEnsemble.from_members([ens.member(int(ens.serving_member))]).eval()
     x = torch.as_tensor(np.asarray(states, np.float32))
     n, t = x.shape[:2]
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))

@@ -171,7 +171,8 @@ def run_node(make_node: Callable, prog: str, description: str, table: dict,
         from .node_base import NmrmNode
 
         if not isinstance(node, NmrmNode):
-            raise TypeError(f"{prog}: run_node runs an NmrmNode, got {type(node).__name__}")
+            kind, node = type(node).__name__, None  # nothing of the protocol to close below
+            raise TypeError(f"{prog}: run_node runs an NmrmNode, got {kind}")
         _warn_about_namesakes(node)
         executor = _executor()
         executor.add_node(node)
