@@ -47,7 +47,7 @@ class MILEnsemble(nn.Module):
         self.config = config
         self.members = int(members)
         template = build_model(config)
-        self.architecture = template.architecture  # the rule: architectures.REGISTRY
+        self.rule = template.rule  # the architecture's rule: architectures.REGISTRY
         self.uses_lstm = template.uses_lstm
         self.hidden_size = template.hidden_size
         self.params = nn.ParameterDict({
@@ -204,8 +204,8 @@ class MILEnsemble(nn.Module):
         f = self._features(x.reshape(K, B * T, d))
         hidden = self._lstm(f.view(K, B, T, -1)) if self.uses_lstm else None  # (K, B, T, k)
         flat_hidden = None if hidden is None else hidden.reshape(K, B * T, -1)
-        y = self._head_out(self.architecture.head_input(f, flat_hidden)).view(K, B, T)
-        returns, rewards = self.architecture.outputs(y, mask, lengths)
+        y = self._head_out(self.rule.head_input(f, flat_hidden)).view(K, B, T)
+        returns, rewards = self.rule.outputs(y, mask, lengths)
         if hidden is None:
             return MILOutput(returns, rewards, x.new_zeros(K, B, T, 0))
         return MILOutput(returns, rewards, hidden * mask[..., None])

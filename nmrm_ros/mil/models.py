@@ -128,8 +128,8 @@ class MILRewardModel(nn.Module):
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         self.config = config
-        self.architecture = architecture(config.architecture)
-        self.uses_lstm = self.architecture.uses_lstm
+        self.rule = architecture(config.architecture)  # what the head sees, its outputs' rule
+        self.uses_lstm = self.rule.uses_lstm
         self.register_buffer("input_shift", torch.zeros(config.input_size))
         self.register_buffer("input_scale", torch.ones(config.input_size))
         self.register_buffer("return_scale", torch.ones(()))
@@ -143,7 +143,7 @@ class MILRewardModel(nn.Module):
 
     @property
     def head_input_size(self) -> int:
-        return self.architecture.head_input_size(self.feature_size, self.config.hidden_size)
+        return self.rule.head_input_size(self.feature_size, self.config.hidden_size)
 
     @property
     def hidden_size(self) -> int:
@@ -173,8 +173,8 @@ class MILRewardModel(nn.Module):
         mask = (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).to(x.dtype)
         features = self._features(x)
         hidden = self._lstm(features) if self.uses_lstm else None
-        y = self._head(self.architecture.head_input(features, hidden))
-        returns, rewards = self.architecture.outputs(y, mask, lengths)
+        y = self._head(self.rule.head_input(features, hidden))
+        returns, rewards = self.rule.outputs(y, mask, lengths)
         if hidden is None:
             return MILOutput(returns, rewards, x.new_zeros(x.shape[0], x.shape[1], 0))
         return MILOutput(returns, rewards, hidden * mask[..., None])

@@ -48,7 +48,7 @@ class OnlineRewardModel:
         self.members = ens.members
         self.serving = int(ens.serving_member)
         self.architecture = cfg.architecture
-        self.rule = ens.architecture  # architectures.REGISTRY: what the head sees, its outputs' rule
+        self.rule = ens.rule  # architectures.REGISTRY: what the head sees, its outputs' rule
         self.input_size = cfg.input_size
         # one member: arrays without the member axis, plain matrix-vector products (a stacked
         # matmul costs twice as much per call, and this runs once per observation)

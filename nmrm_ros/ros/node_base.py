@@ -15,7 +15,7 @@
     def main(args=None) -> int:
         return FakeRobotNode.main(args)    # the executable's entry point
 
-A node ends the process by `finish(code)` (the spin loop stops after the current callback, then
+A node ends the process by setting `self.exit_code` (the spin loop stops after the current callback, then
 `close()`, flush and teardown: `node_main.run_node`); a `NodeError` raised in `__init__` is a
 one-line error and exit code 2. The executable's --help is the module docstring's first line and
 the parameter table.
@@ -43,17 +43,12 @@ class NmrmNode(Node):
     messages_received: int = 0
 
     def __init__(self, node_name: str | None = None, **kwargs) -> None:
-        #: None while running; the process's exit code once the node is done (`finish`)
+        #: None while running; set it to end the process with that code (after the current callback)
         self.exit_code: int | None = None
         self.diagnostics = None
         super().__init__(node_name or self.executable, **kwargs)
         #: the declared parameters' values (name -> value), checked against their Params
         self.params: dict = declare_parameters(self, self.PARAMETERS)
-
-    def finish(self, code: int = 0) -> None:
-        """End the process with `code` once the current callback returns (a first call wins)."""
-        if self.exit_code is None:
-            self.exit_code = int(code)
 
     def exit_with_upstream(self, subscriptions, on_gone: Callable | None = None) -> None:
         """If the parameter `exit_with_upstream` is set: end (code 0) when `subscriptions` had

@@ -133,7 +133,7 @@ def _help(prog: str, description: str, table: dict) -> str:
 def run_node(make_node: Callable, prog: str, description: str, table: dict,
              argv: list | None = None, on_spin: Callable | None = None) -> int:
     """Create the node with `make_node()` (an `NmrmNode`: `node_base`) and spin it until
-    shutdown or until it sets its `exit_code` (`finish`); then `close()` it; returns the exit code.
+    shutdown or until it sets its `exit_code`; then `close()` it; returns the exit code.
     `NmrmNode.main` calls this."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
