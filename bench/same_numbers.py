@@ -67,15 +67,25 @@ def main() -> None:
     what.add_argument("--save", type=Path, help="write this commit's numbers to this .npz")
     what.add_argument("--compare", type=Path, help="compare this commit's numbers with an .npz written by --save")
     a = parser.parse_args()
-    if a.compare is not None and not a.compare.is_file():
-        sys.exit(f"same_numbers: no such file {a.compare} (write it with --save on the old commit)")
+    if a.compare is not None:
+        if not a.compare.is_file():
+            sys.exit(f"same_numbers: no such file {a.compare} (write it with --save on the old commit)")
+        try:
+            before = np.load(a.compare)
+            before.files
+        except (OSError, ValueError, AttributeError) as exc:
+            sys.exit(f"same_numbers: {a.compare} is not an .npz written by --save ({type(exc).__name__})")
+    else:
+        try:  # before a minute of work: a path that cannot be written is said now
+            a.save.parent.mkdir(parents=True, exist_ok=True)
+            (a.save if a.save.suffix == ".npz" else Path(f"{a.save}.npz")).touch()  # where np.savez writes
+        except OSError as exc:
+            sys.exit(f"same_numbers: cannot write {a.save}: {exc.strerror or exc}")
     out = run()
     if a.save is not None:
-        a.save.parent.mkdir(parents=True, exist_ok=True)
         np.savez(a.save, **out)
         print(f"wrote {len(out)} arrays to {a.save}")
         return
-    before = np.load(a.compare)
     if set(before.files) != set(out):
         sys.exit(f"same_numbers: the runs hold different quantities: only before {sorted(set(before.files) - set(out))}, "
                  f"only now {sorted(set(out) - set(before.files))}")
