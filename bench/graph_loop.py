@@ -31,11 +31,11 @@ def main() -> None:
     if checkpoint is None and args.mode == "model":
         from nmrm_ros.datasets import generate_screened
         from nmrm_ros.mil import load_train_config
-        from nmrm_ros.mil.pipeline import train_and_evaluate
+        from nmrm_ros.mil.pipeline import fit
 
         ds = generate_screened(args.task, 1000, seed=0)
         out = Path(tempfile.mkdtemp()) / f"{args.task}_csc"
-        run = train_and_evaluate(ds, "csc_lstm", load_train_config(args.task, max_epochs=20), out=out,
+        run = fit(ds, "csc_lstm", load_train_config(args.task, max_epochs=20), out=out,
                                  progress=False)
         checkpoint = str(run.checkpoint)
     cmd = ["nmrm", "launch", str(REPO / "launch_scripts" / "graph.launch.yaml"), f"task:={args.task}",

@@ -124,13 +124,13 @@ def run(job: tuple) -> dict:
     from nmrm_ros.interpret.lander_probes import rollout_probe, LANDER_PROBES
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = load_dataset("lunar_lander", 5000, 0)
     overrides = BASE | VARIANTS[variant]
     cfg = load_train_config("lunar_lander", seed=seed, **overrides)
     t0 = time.perf_counter()
-    result = train_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,
+    result = fit(ds, "csc_lstm", cfg, cfg.members, split_seed=seed, progress=False,
                                 offsets=[1000 * j for j in range(cfg.members)],
                                 out=MODELS / f"{variant}_s{seed}")
     seconds = time.perf_counter() - t0

@@ -47,7 +47,7 @@ def main() -> None:
     from nmrm_ros.mil import load_checkpoint
 
     ens, meta = load_checkpoint(args.checkpoint)
-    task, arch = meta["task"], ens.config.architecture
+    task, arch = meta.task, ens.config.architecture
     ds = load_dataset(task, args.n, args.data_seed)
     real = np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None]
     preds = member_predictions(ens, ds) * real  # (K, n, T)
@@ -59,7 +59,7 @@ def main() -> None:
 
     bar_ret = PAPER_RETURN[arch][task][0] + 2 * PAPER_RETURN[arch][task][1]
     bar_rew = PAPER_REWARD[arch][task][0] + 2 * PAPER_REWARD[arch][task][1]
-    seeds = meta["ensemble"]["seeds"]
+    seeds = meta.ensemble.seeds
     print(f"# {args.checkpoint}: {ens.members} members of {arch} on {task}; scored on {len(ds)} screened "
           f"bags of data seed {args.data_seed}; bars (paper mean + 2 SEM): return {bar_ret:.3f}, reward {bar_rew:.4f}")
     single = [scores(preds[m]) for m in range(ens.members)]

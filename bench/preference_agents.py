@@ -84,15 +84,14 @@ def greedy_episodes(agent_dir: Path, checkpoint: Path, task: str) -> tuple[np.nd
 
 def mapped_checkpoint(src: Path, dst: Path, a: float, b: float) -> Path:
     """A copy of the CSC checkpoint `src` whose per-step rewards are (r' - b) / a (every member)."""
-    from nmrm_ros.mil import load_checkpoint, save_checkpoint
+    from nmrm_ros.mil import Run
     from nmrm_ros.mil.calibration import Calibration, calibrate
-    from nmrm_ros.mil.checkpoint import caller_meta
 
-    model, meta = load_checkpoint(src)
-    fit = Calibration(gain=np.full(model.members, a), bias=np.full(model.members, b), labels=0)
-    keep = caller_meta(meta)
-    return save_checkpoint(calibrate(model, fit), dst, task=meta["task"], **keep,
-                           mapped={"from": str(src), "a": a, "b": b, "rewards": "(r - b) / a"})
+    run = Run.load(src)
+    fit = Calibration(gain=np.full(run.model.members, a), bias=np.full(run.model.members, b), labels=0)
+    return run.replace(model=calibrate(run.model, fit),
+                       extra={**run.meta.extra, "mapped": {"from": str(src), "a": a, "b": b,
+                                                           "rewards": "(r - b) / a"}}).save(dst)
 
 
 def final_return(curve: Path) -> float:

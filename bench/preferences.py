@@ -95,14 +95,14 @@ def run(job: tuple) -> dict:
            "test": {k: on_test[k] for k in keep}, "held": {k: on_held[k] for k in keep},
            "best_epochs": result.best_epochs, "epochs": result.epochs_run,
            "still_improving": result.still_improving, "seconds": seconds, "clock": "cpu", "config": cfg.to_dict()}
-    from nmrm_ros.mil import save_checkpoint
+    from nmrm_ros.mil import Run
+    from nmrm_ros.mil.checkpoint import DataInfo, EnsembleInfo
 
     serving = int(np.argmin(result.best_val_loss))
     ens.serving_member.fill_(serving)
-    save_checkpoint(ens, MODELS / out.name / "models" / run_name(task, arch, teacher, n, r), task=task, seed=r,
-                    split_seed=r, train_config=cfg.to_dict(), ensemble={"members": len(seeds), "seeds": seeds,
-                                                                        "serving_member": serving},
-                    metrics={"test": on_test, "held": on_held})
+    Run.of(ens, task, seed=r, split_seed=r, train_config=cfg.to_dict(), ensemble=EnsembleInfo(len(seeds), serving, seeds),
+           data=DataInfo(n=len(ds), meta=ds.meta), metrics={"test": on_test, "held": on_held}
+           ).save(MODELS / out.name / "models" / run_name(task, arch, teacher, n, r))
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{run_name(task, arch, teacher, n, r)}.json").write_text(json.dumps(res, indent=1))
     return res
@@ -146,17 +146,15 @@ def agent(job: tuple) -> dict:
 
 def calibrated_model(src: Path, dst: Path, task: str, r: int) -> None:
     """Write the model `src` calibrated on CAL_LABELS return labels of its training data (seed r)."""
-    from nmrm_ros.mil import load_checkpoint, save_checkpoint
+    from nmrm_ros.mil import DataSource, Run
     from nmrm_ros.mil.calibration import calibrate, fit_calibration
-    from nmrm_ros.mil.checkpoint import caller_meta
 
-    model, meta = load_checkpoint(src)
+    run = Run.load(src, task=task)
     ds = load_dataset(task, 5000, r)
     pick = np.sort(np.random.default_rng([r, 0xCA1]).choice(len(ds), CAL_LABELS, replace=False))
-    fit = fit_calibration(model, ds.subset(pick))
-    keep = caller_meta(meta)
-    save_checkpoint(calibrate(model, fit), dst, task=task,
-                    **keep, calibration={**fit.to_dict(), "from": str(src), "data": f"screened:{task}:seed={r}"})
+    fit = fit_calibration(run.model, ds.subset(pick))
+    run.replace(model=calibrate(run.model, fit), calibration={
+        **fit.to_dict(), "from": str(src), "data": str(DataSource.generated(task, 5000, r))}).save(dst)
 
 
 def kept_agents(out: Path) -> list:

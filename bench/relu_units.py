@@ -22,7 +22,7 @@ from reproduce_tables import load_dataset, parse_overrides
 
 from nmrm_ros.mil import load_train_config, model_config
 from nmrm_ros.mil.ensemble import init_ensemble
-from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.mil.training import initialise
 
 
@@ -46,7 +46,7 @@ def main() -> None:
     real = np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None]
     states = torch.as_tensor(ds.states[real], dtype=torch.float32)  # every real instance, (N, d)
     start = time.perf_counter()
-    run = train_and_evaluate(ds, args.arch, cfg, members=len(repeats), split_mode="per_member",
+    run = fit(ds, args.arch, cfg, members=len(repeats), split_mode="per_member",
                              progress=False, offsets=repeats)
     print(f"# {args.task} {args.arch}, 5000 bags (data seed 0), repeats {repeats}, relu_bias {cfg.relu_bias}, "
           f"settings {parse_overrides(args.set)}; {time.perf_counter() - start:.0f} s")

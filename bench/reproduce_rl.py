@@ -67,8 +67,8 @@ def train_reward_model(job: tuple) -> dict:
 
     torch.set_num_threads(1)
     from reproduce_tables import load_dataset
-    from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil import DataSource, load_train_config
+    from nmrm_ros.mil.pipeline import fit
 
     out = model_path(work, task, arch, seed)
     meta_file = out.with_suffix(".json")
@@ -81,8 +81,8 @@ def train_reward_model(job: tuple) -> dict:
         print(f"  {task} {arch} seed {seed}: trained with other settings or data than today's "
               f"({', '.join(stale)}): training again", flush=True)
     ds = load_dataset(task, 5000, seed)
-    run = train_and_evaluate(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
-                             data_source=f"screened:{task}:n=5000:seed={seed}",
+    run = fit(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
+                             data_source=DataSource.generated(task, 5000, seed),
                              offsets=[1000 * j for j in range(cfg.members)])
     return {"task": task, "arch": arch, "seed": seed, **run.test_metrics,
             "seconds": run.train.seconds, "cached": False}

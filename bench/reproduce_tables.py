@@ -128,7 +128,7 @@ def run_ensemble(job: tuple) -> list:
     """Train the repeats of one (task, architecture) as one ensemble; one dict per repeat."""
     task, arch, repeats, n, data_seed, overrides, threads, log_every, save, members, member0_from = job
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = load_dataset(task, n, data_seed)
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
@@ -137,7 +137,7 @@ def run_ensemble(job: tuple) -> list:
         return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed,
                                     member0_from)
 
-    run = train_and_evaluate(ds, arch, cfg, members=len(repeats), split_seed=0,
+    run = fit(ds, arch, cfg, members=len(repeats), split_seed=0,
                              split_mode="per_member", progress=False,
                              on_epoch=epoch_logger(f"{task} {arch}", log_every),
                              offsets=list(repeats),
@@ -158,24 +158,24 @@ def saved_members0(path: Path, task: str, arch: str, repeats: list, cfg, n: int,
 
     ckpt = Path(path) / f"{task}_{arch}"
     saved, meta = load_checkpoint(ckpt)
-    ens = meta["ensemble"]
-    if ens.get("split_mode") != "per_member" or ens["seeds"] != ens["split_seeds"]:
+    ens = meta.ensemble
+    if ens.split_mode != "per_member" or ens.seeds != ens.split_seeds:
         raise SystemExit(f"{ckpt}: not a one-model-per-repeat run (reproduce_tables --members 1 --save)")
-    if meta["data"]["n"] != n or meta["data"]["meta"].get("seed") != data_seed:
-        raise SystemExit(f"{ckpt}: trained on {meta['data']['n']} bags of data seed "
-                         f"{meta['data']['meta'].get('seed')}, not {n} of data seed {data_seed}")
+    if meta.data.n != n or meta.data.meta.get("seed") != data_seed:
+        raise SystemExit(f"{ckpt}: trained on {meta.data.n} bags of data seed "
+                         f"{meta.data.meta.get('seed')}, not {n} of data seed {data_seed}")
     ignore = ("seed", "threads", "members")
-    theirs = {k: v for k, v in with_defaults(meta["train_config"]).items() if k not in ignore}
+    theirs = {k: v for k, v in with_defaults(meta.train_config).items() if k not in ignore}
     ours = {k: v for k, v in cfg.to_dict().items() if k not in ignore}
     if theirs != ours:
         diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
         raise SystemExit(f"{ckpt}: trained with other settings ({', '.join(diff)} differ)")
-    missing = [r for r in repeats if r not in ens["seeds"]]
+    missing = [r for r in repeats if r not in ens.seeds]
     if missing:
         raise SystemExit(f"{ckpt}: has no run of repeat(s) {missing}")
-    m = meta["metrics"]
+    m = meta.metrics
     return {r: (saved.member(i), m["best_epochs"][i], m["still_improving"][i], m["seconds"])
-            for i, r in enumerate(ens["seeds"]) if r in repeats}
+            for i, r in enumerate(ens.seeds) if r in repeats}
 
 
 def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed,
@@ -201,14 +201,13 @@ def run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save,
     result = train_ensemble(ens, ds, [splits[r][:2] for r, _ in layout], cfg, seeds=seeds,
                             progress=False, on_epoch=epoch_logger(f"{task} {arch} x{members}", log_every))
     if save is not None:
-        from nmrm_ros.mil.checkpoint import save_checkpoint
+        from nmrm_ros.mil import DataSource, Run
+        from nmrm_ros.mil.checkpoint import DataInfo, EnsembleInfo
 
-        save_checkpoint(ens, Path(save) / f"{task}_{arch}_x{members}", task=ds.task, seed=seeds[0],
-                        split_seed=repeats[0], train_config=cfg.to_dict(),
-                        data={"source": f"screened:{task}:n={len(ds)}:seed={data_seed}", "n": len(ds), "meta": ds.meta},
-                        ensemble={"members": len(seeds), "seeds": seeds,
-                                  "split_seeds": [r for r, _ in layout], "split_mode": "per_member",
-                                  "serving_member": 0})
+        Run.of(ens, ds.task, seed=seeds[0], split_seed=repeats[0], train_config=cfg.to_dict(),
+               data=DataInfo(DataSource.generated(task, len(ds), data_seed), len(ds), ds.meta),
+               ensemble=EnsembleInfo(len(seeds), 0, seeds, [r for r, _ in layout], "per_member")
+               ).save(Path(save) / f"{task}_{arch}_x{members}")
     runs = []
     for r in repeats:
         idx = [i for i, (rr, _) in enumerate(layout) if rr == r]

@@ -77,15 +77,14 @@ def members(path: Path):
     from nmrm_ros.mil.data import split_indices
 
     model, meta = load_checkpoint(path)
-    source = meta["data"]["source"] or ""
-    n = int(meta["data"]["n"])
-    data_seed = int(meta["data"]["meta"].get("seed", 0))
-    ds = load_dataset(meta["task"], n, data_seed)
-    if source and not source.startswith("screened"):
-        print(f"# note: {path}: data source {source!r}; using the screened dataset n={n}, seed {data_seed}")
-    ens = meta.get("ensemble") or {}
-    split_seeds = ens.get("split_seeds") or [int(meta.get("split_seed", 0))] * model.members
-    seeds = ens.get("seeds") or [meta.get("seed")]
+    source = meta.data.source
+    n = int(meta.data.n)
+    data_seed = int(meta.data.meta.get("seed", 0))
+    ds = load_dataset(meta.task, n, data_seed)
+    if source.kind not in ("screened", ""):
+        print(f"# note: {path}: data source {str(source)!r}; using the screened dataset n={n}, seed {data_seed}")
+    split_seeds = meta.ensemble.split_seeds or [int(meta.split_seed or 0)] * model.members
+    seeds = meta.ensemble.seeds or [meta.seed]
     for m in range(model.members):
         test = split_indices(len(ds), int(split_seeds[m]))[2]
         yield f"seed {seeds[m]} split {split_seeds[m]}", model.member(m), ds.subset(test)

@@ -47,16 +47,16 @@ def train_model(job: tuple) -> dict:
 
     torch.set_num_threads(1)
     from nmrm_ros.datasets import generate_screened
-    from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil import DataSource, load_train_config
+    from nmrm_ros.mil.pipeline import fit
 
     out = model_stem(work, task, data_seed)
     if out.with_suffix(".json").is_file():
         return json.loads(out.with_suffix(".json").read_text())["metrics"]
     ds = generate_screened(task, 5000, seed=data_seed)
     cfg = load_train_config(task, seed=data_seed, **overrides)
-    source = f"screened:{task}:n=5000:seed={data_seed}"
-    train_and_evaluate(ds, "csc_lstm", cfg, cfg.members, split_seed=data_seed, out=out, progress=False,
+    source = DataSource.generated(task, 5000, data_seed)
+    fit(ds, "csc_lstm", cfg, cfg.members, split_seed=data_seed, out=out, progress=False,
                        data_source=source)
     return json.loads(out.with_suffix(".json").read_text())["metrics"]
 

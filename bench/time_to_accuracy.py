@@ -116,7 +116,7 @@ def run(task: str, seed: int, tag: str, config: Path | None) -> dict:
         raise SystemExit(f"{task} seed {seed}: nmrm train failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
     model, meta = load_checkpoint(out)
     on_held = evaluate(model, TrajectoryDataset.load(held))
-    training = meta.get("metrics") or {}
+    training = meta.metrics
     res = {"task": task, "data_seed": seed, "weight_seed": seed, "split_seed": seed, "held_out_seed": HELD_OUT_SEED,
            "tag": tag, "config": str(config) if config else "config/mil_training.yaml", "command": " ".join(cmd),
            "wall_seconds": wall, "held_return_mse": on_held["return_mse"], "held_reward_mse": on_held["reward_mse"],

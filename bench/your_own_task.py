@@ -102,7 +102,8 @@ def run_model(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import load_train_config, save_checkpoint
+    from nmrm_ros.mil import Run, load_train_config
+    from nmrm_ros.mil.checkpoint import EnsembleInfo
 
     ds, held = dataset(setting, N, r), dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(setting.task, seed=r)
@@ -110,7 +111,7 @@ def run_model(job: tuple) -> dict:
     seeds = ens_seeds(r, cfg)
     path = checkpoint_path(setting, arch, r)
     path.parent.mkdir(parents=True, exist_ok=True)
-    save_checkpoint(ens, path, task=setting.task, ensemble={"members": len(seeds), "seeds": seeds, "serving_member": 0})
+    Run.of(ens, setting.task, ensemble=EnsembleInfo(len(seeds), 0, seeds)).save(path)
     res = {"arch": arch, "repeat": r, "data_seed": r, "n": N, "weight_seeds": seeds,
            "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
            "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],

@@ -405,7 +405,7 @@ def labels_import(
 ) -> None:
     """Turn a labels file into a labels-only bag, which `nmrm train --bag RECORDING --bag OUT` joins
     to its recording (and the trainer node reads with `bags`)."""
-    from .labelling.label_files import read_labels, write_labels_bag
+    from .labelling.label_files import write_labels_bag
 
     if out.exists() and any(out.iterdir()):
         raise typer.BadParameter(f"--out {out} exists and is not empty")
@@ -461,36 +461,39 @@ def bag_repair(path: Path = typer.Argument(..., help="bag directory (or .mcap) o
 
 
 def _load_bags(paths: list, task: str | None, labeller: str | None):
-    """A dataset from recorded bags, with the validation report printed."""
+    """A dataset from recorded bags, with the validation report printed; (dataset, its DataSource)."""
     from .bags import BagError, load_bag_dataset
+    from .mil.checkpoint import DataSource
 
     try:
         ds, report = load_bag_dataset(list(paths), task=task, labeller=labeller)
     except BagError as exc:
         raise typer.BadParameter(str(exc)) from None
     typer.echo(f"bags: {report}")
-    return ds, "bags:" + ",".join(str(p) for p in paths)
+    return ds, DataSource.bags(paths)
 
 
 def _load_or_generate(data: Path | None, task: str | None, n: int, seed: int):
-    """A dataset from an .npz file, or generated (screened task / toy) from task, n and seed."""
+    """A dataset from an .npz file, or generated (screened task / toy) from task, n and seed;
+    (dataset, its DataSource)."""
     from .datasets import TOY_DATASETS, TrajectoryDataset, generate_screened, make_toy_dataset
+    from .mil.checkpoint import DataSource
     from .tasks import check_task
 
     if data is not None:
         if not data.is_file():
             raise typer.BadParameter(f"no dataset file {data}")
         try:
-            return TrajectoryDataset.load(data), str(data)
+            return TrajectoryDataset.load(data), DataSource.file(data)
         except Exception as exc:  # noqa: BLE001 - any unreadable file: one line, not a traceback
             raise typer.BadParameter(f"{data} is not a dataset .npz (from `nmrm dataset ...`): "
                                      f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from None
     if task is None:
         raise typer.BadParameter("give --data FILE or --task")
     if task in TOY_DATASETS:
-        return make_toy_dataset(task, n, seed=seed), f"toy:{task}:n={n}:seed={seed}"
+        return make_toy_dataset(task, n, seed=seed), DataSource.generated(task, n, seed)
     _bad_input(check_task, task)
-    return generate_screened(task, n, seed=seed), f"screened:{task}:n={n}:seed={seed}"
+    return generate_screened(task, n, seed=seed), DataSource.generated(task, n, seed)
 
 
 @app.command()
@@ -536,7 +539,7 @@ def train(
     """Train a MIL reward model or an ensemble (early stopping on the validation loss) and
     evaluate it on the test split."""
     from .mil import ARCHITECTURES, load_train_config
-    from .mil.pipeline import SPLIT_MODES, train_and_evaluate
+    from .mil.pipeline import SPLIT_MODES, fit
 
     if arch not in ARCHITECTURES:
         raise typer.BadParameter(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
@@ -568,7 +571,7 @@ def train(
         typer.echo(f"note: --reward-l1 {reward_l1:g} is not used with --feedback preferences (comparisons leave "
                    f"the rewards' scale free: the prior would shrink it towards 0)", err=True)
     members = cfg.members if ensemble is None else ensemble
-    run = _bad_input(train_and_evaluate, ds, arch, cfg, members, split_seed=split_seed, split_mode=split_mode,
+    run = _bad_input(fit, ds, arch, cfg, members, split_seed=split_seed, split_mode=split_mode,
                      out=out, data_source=source)
     _print_run(run, cfg)
 
@@ -608,7 +611,6 @@ def evaluate(
     split: str = typer.Option("test", help="test | val | train | all (of the dataset)"),
 ) -> None:
     """Test-split return MSE and reward MSE of a checkpoint (the paper's table metrics)."""
-    from .datasets import TOY_DATASETS
     from .mil import CheckpointError, evaluate as evaluate_model, load_checkpoint
     from .mil.data import split_indices
 
@@ -617,20 +619,19 @@ def evaluate(
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc)) from None
     if bag:
-        ds, _ = _load_bags(bag, meta.get("task"), labeller)
+        ds, _ = _load_bags(bag, meta.task, labeller)
         if not ds.meta.get("oracle_ground_truth"):
             typer.echo("note: not every episode has OracleStep ground truth; reward MSE is against zeros there")
     elif data is None:
-        source = meta.get("data", {}).get("source", "")
-        parts = source.split(":")
-        if source.startswith("bags:"):
-            ds, _ = _load_bags(source[5:].split(","), meta.get("task"), None)
-        elif len(parts) != 4 or parts[0] not in ("toy", "screened"):
-            raise typer.BadParameter(f"checkpoint data source {source!r} cannot be regenerated; give --data")
+        source = meta.data.source
+        if not source.regenerable:
+            raise typer.BadParameter(f"checkpoint data source {str(source)!r} cannot be regenerated; give --data")
+        if source.kind == "bags":
+            ds, _ = _load_bags(source.paths, meta.task, None)
+        elif source.kind == "file":
+            ds, _ = _load_or_generate(Path(source.paths[0]), None, 0, 0)
         else:
-            task, n, seed = parts[1], int(parts[2][2:]), int(parts[3][5:])
-            ds, _ = _load_or_generate(None, task, n, seed)
-            assert (task in TOY_DATASETS) == (parts[0] == "toy")
+            ds, _ = _load_or_generate(None, source.task, source.n, source.seed)
     else:
         ds, _ = _load_or_generate(data, None, 0, 0)
     if ds.state_size != model.config.input_size:
@@ -640,12 +641,12 @@ def evaluate(
         names = ("train", "val", "test")
         if split not in names:
             raise typer.BadParameter(f"--split must be one of {names + ('all',)}")
-        ds = ds.subset(split_indices(len(ds), meta.get("split_seed", 0))[names.index(split)])
+        ds = ds.subset(split_indices(len(ds), meta.split_seed or 0)[names.index(split)])
     m = evaluate_model(model, ds)
     what = f"{model.members}-member ensemble of " if model.members > 1 else ""
     typer.echo(f"{what}{model.config.architecture} on {ds.task} ({split}): {_metrics_line(m)} "
                f"(of the reward MSE, the mean error per step index: {m['reward_mse_time_profile']:.5f})")
-    if meta.get("train_config", {}).get("feedback") == "preferences":
+    if meta.train_config.get("feedback") == "preferences":
         typer.echo("note: trained on preferences, which fix returns only up to an offset and a scale: "
                    "judge it by the preference accuracy and the reward correlation, not the MSEs")
 
@@ -666,20 +667,21 @@ def calibrate(
     return labels (R' = gain R + bias L) and write a copy whose rewards are (r' - bias) / gain."""
     import numpy as np
 
-    from .mil import CheckpointError, evaluate as evaluate_model, load_checkpoint, save_checkpoint
+    from .mil import CheckpointError, Run, evaluate as evaluate_model
     from .mil.calibration import CalibrationError, calibrate as calibrate_model, check_calibratable, fit_calibration
-    from .mil.checkpoint import caller_meta, checkpoint_paths
+    from .mil.checkpoint import checkpoint_paths
 
     if (data is None) == (not bag):
         raise typer.BadParameter("give the return labels as --data FILE or --bag BAG (one of them)")
     if checkpoint_paths(out)[0].resolve() == checkpoint_paths(checkpoint)[0].resolve():
         raise typer.BadParameter(f"--out {out} is the checkpoint itself: give another path (nothing is overwritten)")
     try:
-        model, meta = load_checkpoint(checkpoint)
+        run = Run.load(checkpoint)
     except CheckpointError as exc:
         raise typer.BadParameter(str(exc)) from None
+    model = run.model
     _bad_input(check_calibratable, model)
-    ds, source = _load_bags(bag, meta.get("task"), labeller) if bag else _load_or_generate(data, None, 0, 0)
+    ds, source = _load_bags(bag, run.meta.task, labeller) if bag else _load_or_generate(data, None, 0, 0)
     if ds.state_size != model.config.input_size:
         raise typer.BadParameter(f"dataset states have size {ds.state_size}, the model takes {model.config.input_size}")
     labelled = np.flatnonzero(np.isfinite(ds.returns))
@@ -698,9 +700,8 @@ def calibrate(
     typer.echo(f"calibrated on {fit.labels} return labels ({source}): serving member's rewards were "
                f"{fit.gain[m]:.4g} r {fit.bias[m]:+.4g} per step; return MSE on them {before['return_mse']:.4f} -> "
                f"{after['return_mse']:.4f}")
-    keep = caller_meta(meta)
-    keep["calibration"] = {**fit.to_dict(), "from": str(checkpoint_paths(checkpoint)[0]), "data": source}
-    path = save_checkpoint(calibrated, out, task=meta.get("task"), **keep)
+    path = run.replace(model=calibrated, calibration={**fit.to_dict(), "from": str(checkpoint_paths(checkpoint)[0]),
+                                                      "data": str(source)}).save(out)
     typer.echo(f"wrote {path}")
 
 
@@ -750,7 +751,7 @@ def check(
         raise typer.BadParameter(str(exc)) from None
     from .oracles import make_oracle
 
-    task = meta["task"]
+    task = meta.task
     _bad_input(check_task, task)
     _bad_input(make_oracle, task, oracle)
     typer.echo(f"checking {checkpoint} ({model.config.architecture} on {task})")

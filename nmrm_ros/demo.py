@@ -59,7 +59,8 @@ def run_demo(task: str, live_episodes: int, screened: int, epochs: int, agent_ep
     from .bags import BagError, iter_decoded, load_bag_dataset, write_dataset_bag
     from .datasets import generate_screened
     from .mil import evaluate as evaluate_model, load_train_config
-    from .mil.pipeline import train_and_evaluate
+    from .mil import DataSource
+    from .mil.pipeline import fit
     from .rl import evaluate_agent
 
     shutil.rmtree(out, ignore_errors=True)
@@ -85,8 +86,7 @@ def run_demo(task: str, live_episodes: int, screened: int, epochs: int, agent_ep
     ds, duplicates = ds.deduplicated()
     echo(f"      {report}; {duplicates} duplicate episode(s) (same states and label) used once")
     cfg = load_train_config(task, max_epochs=epochs, seed=seed)
-    run = train_and_evaluate(ds, "csc_lstm", cfg, split_seed=seed, out=ckpt,
-                             data_source="bags:" + ",".join(map(str, sources)))
+    run = fit(ds, "csc_lstm", cfg, split_seed=seed, out=ckpt, data_source=DataSource.bags(sources))
     m = run.test_metrics
     figures.update(test_return_mse=m["return_mse"], test_reward_mse=m["reward_mse"])
     echo(f"      best epoch {run.train.best_epochs[0]}, {run.train.seconds:.1f} s; test return MSE "

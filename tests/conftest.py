@@ -48,9 +48,9 @@ def small_key_checkpoint(tmp_path_factory):
     """A CSC model trained for 2 epochs on 200 screened Key episodes (data seed 0, weight seed 0)."""
     from nmrm_ros.datasets import generate_screened
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = generate_screened("key", 200, seed=0)
     path = tmp_path_factory.mktemp("ckpt") / "key_csc"
-    return train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=2), out=path,
+    return fit(ds, "csc_lstm", load_train_config("key", max_epochs=2), out=path,
                               progress=False).checkpoint

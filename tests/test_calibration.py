@@ -12,7 +12,7 @@ import torch
 from graph_helpers import executable
 from nmrm_ros.datasets import make_toy_dataset
 from nmrm_ros.datasets.trajectories import TrajectoryDataset
-from nmrm_ros.mil import evaluate, load_checkpoint, save_checkpoint
+from nmrm_ros.mil import Run, evaluate, load_checkpoint
 from nmrm_ros.mil.calibration import CalibrationError, calibrate, fit_calibration
 from nmrm_ros.mil.ensemble import init_ensemble
 from nmrm_ros.mil.models import model_config
@@ -76,7 +76,7 @@ def test_what_cannot_be_calibrated_is_refused_in_one_line():
 def test_nmrm_calibrate_writes_a_calibrated_copy_and_keeps_the_original(tmp_path):
     ds = make_toy_dataset("push_switch", 100, seed=0)
     model = init_ensemble(model_config("csc_lstm", "push_switch", ds.state_size), [0]).eval()
-    save_checkpoint(model, tmp_path / "m", task="push_switch", train_config={"feedback": "preferences"})
+    Run.of(model, "push_switch", train_config={"feedback": "preferences"}).save(tmp_path / "m")
     original = (tmp_path / "m.pt").read_bytes()
     _labelled_by(model, ds, 4.0, -0.05).save(tmp_path / "labels.npz")
     nmrm = executable("nmrm")
@@ -85,8 +85,8 @@ def test_nmrm_calibrate_writes_a_calibrated_copy_and_keeps_the_original(tmp_path
     assert res.returncode == 0, res.stderr
     assert "calibrated on 20 return labels" in res.stdout and "4 r -0.05 per step" in res.stdout, res.stdout
     cal, meta = load_checkpoint(tmp_path / "cal")
-    assert meta["calibration"]["gain"] == [pytest.approx(4.0, rel=1e-4)]
-    assert meta["train_config"] == {"feedback": "preferences"}
+    assert meta.calibration["gain"] == [pytest.approx(4.0, rel=1e-4)]
+    assert meta.train_config == {"feedback": "preferences"}
     assert (tmp_path / "m.pt").read_bytes() == original
     # over itself, or without labels: one line, nothing written
     for args, message in ((["--data", str(tmp_path / "labels.npz"), "--out", str(tmp_path / "m")], "is the checkpoint itself"),

@@ -250,13 +250,13 @@ def test_a_failed_repair_leaves_the_bag_as_it_was(tmp_path):
 def two_checkpoints(tmp_path_factory):
     from nmrm_ros.datasets import generate_screened
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     out = tmp_path_factory.mktemp("ckpts")
     paths = {}
     for task in ("timer", "key"):
         ds = generate_screened(task, 100, seed=0)
-        paths[task] = train_and_evaluate(ds, "csc_lstm", load_train_config(task, max_epochs=1),
+        paths[task] = fit(ds, "csc_lstm", load_train_config(task, max_epochs=1),
                                          out=out / task, progress=False).checkpoint
     return paths
 

@@ -12,7 +12,7 @@ from nmrm_msgs.msg import EnvObservation
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import load_checkpoint, load_train_config
 from nmrm_ros.mil.online import batched_reference
-from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.oracles import make_oracle
 from nmrm_ros.ros.topics import OBSERVATION
 
@@ -40,7 +40,7 @@ def key_checkpoint(tmp_path_factory):
     ds = generate_screened("key", 300, seed=0)
     cfg = load_train_config("key", max_epochs=3)
     path = tmp_path_factory.mktemp("ckpt") / "key_csc"
-    run = train_and_evaluate(ds, "csc_lstm", cfg, out=path, progress=False)
+    run = fit(ds, "csc_lstm", cfg, out=path, progress=False)
     return run.checkpoint
 
 
@@ -163,10 +163,10 @@ def test_reward_model_serves_an_ensemble(capture, tmp_path):
     (reward_std, return_std) and the serving member's hidden state, as the online ensemble
     computes them."""
     from nmrm_ros.mil import OnlineRewardModel
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = generate_screened("key", 200, seed=1)
-    run = train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=1),
+    run = fit(ds, "csc_lstm", load_train_config("key", max_epochs=1),
                              members=3, out=tmp_path / "ens", progress=False)
     rm = start("reward_model", mode="model", checkpoint=str(run.checkpoint), task="key")
     pub = capture.publisher(EnvObservation, OBSERVATION)

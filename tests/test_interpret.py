@@ -125,13 +125,13 @@ def lander_checkpoint(tmp_path_factory):
     the views are checked against its own online steps, so it need not be trained."""
     import torch
 
-    from nmrm_ros.mil import save_checkpoint
+    from nmrm_ros.mil import Run
     from nmrm_ros.mil.models import build_model, model_config
 
     torch.manual_seed(3)
     model = build_model(model_config("csc_lstm", "lunar_lander", 8))
     model.set_normalisation(torch.zeros(8), torch.full((8,), 2.0), return_scale=100.0)
-    return save_checkpoint(model.eval(), tmp_path_factory.mktemp("ll") / "ll_csc", task="lunar_lander")
+    return Run.of(model.eval(), "lunar_lander").save(tmp_path_factory.mktemp("ll") / "ll_csc")
 
 
 def test_lander_probes_do_what_they_say():

@@ -11,7 +11,7 @@ from rclpy.duration import Duration
 
 from nmrm_ros.datasets import OnlineLabelSwapper, make_toy_dataset, swap_labels, swap_sources
 from nmrm_ros.mil import load_train_config
-from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.oracles import make_oracle
 
 
@@ -37,10 +37,10 @@ def test_swapping_refuses_bad_fractions():
 
 def test_training_sees_swapped_labels_and_tests_on_clean_ones():
     ds = make_toy_dataset("push_switch", 300, seed=0)
-    runs = {p: train_and_evaluate(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3,
+    runs = {p: fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3,
                                                                   label_swap=p), progress=False)
             for p in (0.0, 0.5)}
-    clean = train_and_evaluate(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3), progress=False)
+    clean = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3), progress=False)
     noisy = runs[0.5]
     # same seeds: only the labels differ, so the training (and validation) losses differ
     assert noisy.train.history[0]["train_loss"] != clean.train.history[0]["train_loss"]

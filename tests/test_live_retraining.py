@@ -15,7 +15,8 @@ from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from nmrm_ros.labelling import LabelQueue
 from nmrm_ros.labelling.active import DisagreementScorer
 from nmrm_ros.labelling.training_set import TrainingSet
-from nmrm_ros.mil import OnlineRewardModel, save_checkpoint
+from nmrm_ros.mil import OnlineRewardModel, Run
+from nmrm_ros.mil.checkpoint import EnsembleInfo
 from nmrm_ros.mil.ensemble import init_ensemble
 from nmrm_ros.mil.models import model_config
 from nmrm_ros.mil.retrain import retrain_splits
@@ -24,8 +25,7 @@ from nmrm_ros.ros.topics import OBSERVATION, TRAJECTORY_PREFERENCE, TRAJECTORY_R
 
 def _ensemble_checkpoint(path, seeds, hidden_size: int = 2):
     ens = init_ensemble(model_config("csc_lstm", "key", 2, hidden_size=hidden_size), seeds)
-    save_checkpoint(ens, path, task="key", ensemble={"members": len(seeds), "seeds": list(seeds),
-                                                     "serving_member": 0})
+    Run.of(ens, "key", ensemble=EnsembleInfo(len(seeds), 0, seeds=list(seeds))).save(path)
     return path.with_suffix(".pt"), ens
 
 

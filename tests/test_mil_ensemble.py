@@ -13,7 +13,7 @@ from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, bui
                           load_checkpoint, load_train_config, model_config, train_model)
 from nmrm_ros.mil.data import split_indices
 from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
-from nmrm_ros.mil.pipeline import member_splits, train_and_evaluate
+from nmrm_ros.mil.pipeline import fit, member_splits
 from nmrm_ros.mil.served_state import served_states
 from nmrm_ros.mil.training import train_ensemble
 
@@ -75,7 +75,7 @@ def test_ensemble_training_is_each_member_trained_alone():
 def test_ensemble_checkpoint_and_online_step(tmp_path):
     ds = make_toy_dataset("push_switch", 200, seed=1)
     cfg = load_train_config("push_switch", max_epochs=2)
-    run = train_and_evaluate(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap",
+    run = fit(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap",
                              out=tmp_path / "ens", progress=False)
     meta = json.loads((tmp_path / "ens.json").read_text())
     assert meta["ensemble"]["members"] == 4 and meta["ensemble"]["seeds"] == [0, 1, 2, 3]
@@ -105,7 +105,7 @@ def test_ensemble_checkpoint_and_online_step(tmp_path):
 
 def test_ensemble_checkpoint_with_wrong_member_count_is_refused(tmp_path):
     ds = make_toy_dataset("push_switch", 100, seed=1)
-    train_and_evaluate(ds, "instance_lstm", load_train_config("push_switch", max_epochs=1),
+    fit(ds, "instance_lstm", load_train_config("push_switch", max_epochs=1),
                        members=2, out=tmp_path / "ens", progress=False)
     meta = json.loads((tmp_path / "ens.json").read_text())
     meta["ensemble"]["members"] = 3
@@ -155,9 +155,9 @@ def test_member_offsets_rerun_chosen_repeats_exactly():
     masks, result): how bench/reproduce_tables.py --seeds reruns a table's failing repeats."""
     ds = make_toy_dataset("push_switch", 150, seed=2)
     cfg = load_train_config("push_switch", max_epochs=2, dropout=0.1)
-    full = train_and_evaluate(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
+    full = fit(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
                               split_seed=4, progress=False)
-    one = train_and_evaluate(ds, "csc_lstm", cfg, members=1, split_mode="per_member",
+    one = fit(ds, "csc_lstm", cfg, members=1, split_mode="per_member",
                                       split_seed=4, progress=False, offsets=[2])
     assert one.seeds == [2] and one.split_seeds == [6]
     assert one.member_test[0]["return_mse"] == pytest.approx(full.member_test[2]["return_mse"], rel=1e-4)
@@ -169,15 +169,15 @@ def test_keep_members_best_keeps_the_member_best_on_validation(tmp_path):
     from nmrm_ros.mil import load_checkpoint, load_train_config
 
     ds = make_toy_dataset("push_switch", 200, seed=0)
-    everyone = train_and_evaluate(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3), members=3,
+    everyone = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3), members=3,
                                   progress=False)
     cfg = load_train_config("push_switch", max_epochs=3, keep_members="best")
-    run = train_and_evaluate(ds, "csc_lstm", cfg, members=3, progress=False, out=tmp_path / "best")
+    run = fit(ds, "csc_lstm", cfg, members=3, progress=False, out=tmp_path / "best")
     chosen = int(np.argmin(everyone.train.best_val_loss))
     assert run.model.members == 1 and run.seeds == [chosen] and run.chosen == chosen
     for (name, kept), full in zip(run.model.params.items(), everyone.model.params.values()):
         torch.testing.assert_close(kept[0], full[chosen], msg=name)
     model, meta = load_checkpoint(tmp_path / "best")
-    assert model.members == 1 and meta["ensemble"]["candidates"] == 3 and meta["ensemble"]["chosen"] == chosen
+    assert model.members == 1 and meta.ensemble.candidates == 3 and meta.ensemble.chosen == chosen
     with pytest.raises(ValueError, match="keep_members"):
         load_train_config("push_switch", keep_members="worst")

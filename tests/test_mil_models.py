@@ -8,7 +8,7 @@ import torch
 
 from nmrm_ros.datasets import make_toy_dataset
 from nmrm_ros.mil import (ARCHITECTURES, CheckpointError, OnlineRewardModel, build_model,
-                          load_checkpoint, load_train_config, model_config, save_checkpoint,
+                          load_checkpoint, load_train_config, model_config, Run,
                           train_model)
 from nmrm_ros.mil.data import normalisation, split_indices
 from nmrm_ros.mil.models import OUTPUT_ACTIVATIONS
@@ -90,12 +90,12 @@ def test_normalisation_uses_training_split_only():
 
 def test_checkpoint_round_trip_and_refusals(tmp_path):
     model = _model("csc_lstm")
-    path = save_checkpoint(model, tmp_path / "key_csc", task="key", seed=0, metrics={"x": 1.0})
+    path = Run.of(model, "key", seed=0, metrics={"x": 1.0}).save(tmp_path / "key_csc")
     loaded, meta = load_checkpoint(path, architecture="csc_lstm", input_size=2, task="key")
-    assert meta["task"] == "key" and meta["metrics"] == {"x": 1.0}
+    assert meta.task == "key" and meta.metrics == {"x": 1.0}
     x = torch.rand(2, 10, 2)
     # a single model is saved and loaded as an ensemble of one
-    assert loaded.members == 1 and meta["ensemble"]["members"] == 1
+    assert loaded.members == 1 and meta.ensemble.members == 1
     torch.testing.assert_close(loaded(x, torch.tensor([10, 7])).rewards[0],
                                model(x, torch.tensor([10, 7])).rewards)
     with pytest.raises(CheckpointError, match="csc_lstm model, not the requested instance_lstm"):
@@ -126,23 +126,51 @@ def test_checkpoint_round_trip_and_refusals(tmp_path):
         load_checkpoint(path)
 
 
+def test_format_1_metadata_loads_typed_and_is_written_back_as_format_2(tmp_path):
+    """A checkpoint of format 1 (the data source a string, written until 2026-12-05) loads with its
+    data source typed (regenerable as before); unknown entries survive a saved copy; a source no
+    code can make again (bench/preferences wrote none) says so."""
+    from nmrm_ros.mil import DataSource, Run
+    from nmrm_ros.mil.checkpoint import FORMAT, DataInfo
+
+    path = Run.of(_model("csc_lstm"), "key", seed=3).save(tmp_path / "new")
+    record = json.loads(path.with_suffix(".json").read_text())
+    assert record["format"] == FORMAT and record["data"]["source"]["kind"] == ""
+    record.update(format="nmrm_ros.mil_checkpoint/1", mapped={"a": 2.0},
+                  data={"source": "toy:key:n=100:seed=4", "n": 100, "meta": {"seed": 4}})
+    path.with_suffix(".json").write_text(json.dumps(record))
+    run = Run.load(path)
+    assert run.meta.data.source == DataSource("toy", "key", 100, 4) and run.meta.data.source.regenerable
+    assert str(run.meta.data.source) == "toy:key:n=100:seed=4" and run.meta.extra == {"mapped": {"a": 2.0}}
+    copy = json.loads(run.replace(calibration={"gain": [1.0]}).save(tmp_path / "copy").with_suffix(".json").read_text())
+    assert copy["format"] == FORMAT and copy["mapped"] == {"a": 2.0} and copy["seed"] == 3
+    assert Run.load(tmp_path / "copy").meta.data == DataInfo(DataSource("toy", "key", 100, 4), 100, {"seed": 4})
+    for text, kind in (("bags:a,b", "bags"), ("runs/x.npz", "file"), ("live labels", "live"),
+                       ("screened:key:seed=3", ""), ("", "")):
+        source = DataSource.parse(text)
+        assert source.kind == kind and (str(source) == text or not kind)
+    assert not DataSource.parse("screened:key:seed=3").regenerable
+    record["format"] = "nmrm_ros.mil_checkpoint/9"
+    path.with_suffix(".json").write_text(json.dumps(record))
+    with pytest.raises(CheckpointError, match="unknown checkpoint format"):
+        Run.load(path)
+
+
 def test_a_single_model_checkpoint_from_before_ensembles_of_one_loads(tmp_path):
     """Checkpoints written before every model became an ensemble (a MILRewardModel's state dict,
     no "ensemble" entry) load as an ensemble of one computing the same."""
     import hashlib
 
-    from nmrm_ros.mil.checkpoint import FORMAT
-
     model = _model("csc_lstm")
     weights = tmp_path / "old.pt"
     torch.save(model.state_dict(), weights)
     (tmp_path / "old.json").write_text(json.dumps({
-        "format": FORMAT, "task": "key", "model": model.config.to_dict(),
+        "format": "nmrm_ros.mil_checkpoint/1", "task": "key", "model": model.config.to_dict(),
         "weights_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
         "normalisation": {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
                           "return_scale": float(model.return_scale)}}))
     loaded, meta = load_checkpoint(weights, task="key")
-    assert loaded.members == 1 and "ensemble" not in meta
+    assert loaded.members == 1 and meta.ensemble.members == 1 and meta.ensemble.seeds is None
     x = torch.rand(3, 9, 2)
     torch.testing.assert_close(loaded(x, torch.tensor([9, 4, 1])).rewards[0],
                                model(x, torch.tensor([9, 4, 1])).rewards)
@@ -175,7 +203,7 @@ def test_output_activations_agree_online_batched_and_ensembled(activation):
 def test_layer_widths_of_a_training_config_reach_the_model_the_checkpoint_and_the_stepper(tmp_path):
     """fe_sizes / head_sizes of a training config (config/mil_training.yaml, `nmrm train
     --fe-sizes/--head-sizes`) replace the family's widths; unset, the family's stand."""
-    from nmrm_ros.mil import load_train_config, save_checkpoint
+    from nmrm_ros.mil import Run, load_train_config
 
     cfg = load_train_config("key", fe_sizes="8,4", head_sizes="")
     config = cfg.model_config("csc_lstm", "key", 4)
@@ -183,7 +211,7 @@ def test_layer_widths_of_a_training_config_reach_the_model_the_checkpoint_and_th
     assert load_train_config("key").model_config("csc_lstm", "key", 4).fe_sizes == (64, 32, 32)
     torch.manual_seed(0)
     model = build_model(config).eval()
-    save_checkpoint(model, tmp_path / "m", task="key")
+    Run.of(model, "key").save(tmp_path / "m")
     loaded, _ = load_checkpoint(tmp_path / "m")
     assert (loaded.config.fe_sizes, loaded.config.head_sizes) == ((8, 4), ())
     states = np.random.default_rng(0).normal(size=(30, 4)).astype(np.float32)

@@ -116,7 +116,7 @@ def test_a_model_trained_on_comparisons_ranks_held_out_pairs():
     """Push switch (the reward depends on whether the switch was pushed earlier) from 1500
     comparisons of a perfect teacher: held-out preference accuracy well above chance, and above a
     Markovian model trained on the same comparisons (measured: 0.94 vs 0.66)."""
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = with_preferences(make_toy_dataset("push_switch", 1000, seed=0), 1500, SimulatedTeacher(), seed=0)
     held = make_toy_dataset("push_switch", 300, seed=7)
@@ -124,7 +124,7 @@ def test_a_model_trained_on_comparisons_ranks_held_out_pairs():
     scores = {}
     for arch in ("csc_lstm", "instance_nn"):
         cfg = load_train_config("push_switch", max_epochs=40, feedback="preferences")
-        run = train_and_evaluate(ds, arch, cfg, progress=False)
+        run = fit(ds, arch, cfg, progress=False)
         scores[arch] = evaluate(run.model, held)
     assert scores["csc_lstm"]["preference_accuracy"] > 0.85, scores
     assert scores["csc_lstm"]["reward_correlation"] > 0.8, scores
@@ -134,10 +134,10 @@ def test_a_model_trained_on_comparisons_ranks_held_out_pairs():
 def test_the_l1_prior_is_not_used_on_comparisons_alone():
     """Comparisons leave the rewards' scale free: the L1 prior would only shrink it (Timer from
     comparisons fell to chance with it), so feedback preferences trains the same without it."""
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = with_preferences(make_toy_dataset("push_switch", 100, seed=0), 150, SimulatedTeacher(), seed=0)
-    runs = [train_and_evaluate(ds, "csc_lstm", load_train_config("push_switch", max_epochs=2, feedback="preferences",
+    runs = [fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=2, feedback="preferences",
                                                                  reward_l1=l1), progress=False)
             for l1 in (0.0, 0.5)]
     for a, b in zip(runs[0].model.parameters(), runs[1].model.parameters()):
@@ -145,16 +145,16 @@ def test_the_l1_prior_is_not_used_on_comparisons_alone():
 
 
 def test_feedback_errors_are_one_line():
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     ds = _ds(100)
     cfg = load_train_config("toggle_switch", max_epochs=1, feedback="preferences")
     with pytest.raises(ValueError, match="needs preferences"):
-        train_and_evaluate(ds, "csc_lstm", cfg, progress=False)
+        fit(ds, "csc_lstm", cfg, progress=False)
     unlabelled = TrajectoryDataset(ds.task, ds.states, ds.lengths, np.full(len(ds), np.nan), ds.rewards,
                                    ds.hidden, meta=ds.meta)
     with pytest.raises(ValueError, match="no return label"):
-        train_and_evaluate(unlabelled, "csc_lstm", load_train_config("toggle_switch", max_epochs=1),
+        fit(unlabelled, "csc_lstm", load_train_config("toggle_switch", max_epochs=1),
                            progress=False)
     with pytest.raises(ValueError, match="feedback must be"):
         load_train_config("toggle_switch", feedback="stars")

@@ -13,7 +13,7 @@ from graph_helpers import executable
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import OnlineRewardModel, load_checkpoint, load_train_config
 from nmrm_ros.mil.online import batched_reference
-from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper, load_rl_config, make_algorithm, make_reward_env
 from nmrm_ros.datasets import TrajectoryDataset
 from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
@@ -28,7 +28,7 @@ def two_models(tmp_path_factory):
     """Two different Key CSC models (weight seeds 0 and 1, 2 epochs): the old one and the new one."""
     ds = generate_screened("key", 200, seed=0)
     out = tmp_path_factory.mktemp("models")
-    return [train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=2, seed=s),
+    return [fit(ds, "csc_lstm", load_train_config("key", max_epochs=2, seed=s),
                                out=out / f"key_{s}", progress=False).checkpoint for s in (0, 1)]
 
 
@@ -54,7 +54,7 @@ def test_a_swapped_model_serves_the_episode_in_progress_as_if_it_had_served_it_f
 
 def test_a_swap_refuses_a_model_of_another_served_size(two_models, tmp_path):
     ds = generate_screened("key", 50, seed=0)
-    bigger = train_and_evaluate(ds, "csc_lstm", load_train_config("key", max_epochs=1, hidden_size=4),
+    bigger = fit(ds, "csc_lstm", load_train_config("key", max_epochs=1, hidden_size=4),
                                 out=tmp_path / "h4", progress=False).checkpoint
     env = RewardModelWrapper(EpisodeSeeds(make_env("key"), 5), two_models[0], task="key")
     env.reset(seed=5)

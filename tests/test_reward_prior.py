@@ -118,10 +118,10 @@ def test_prefix_labels_see_the_credit_the_whole_returns_cannot(key_bags):
 def test_prefix_fraction_trains_on_prefixes_and_tests_on_whole_episodes(key_bags):
     from nmrm_ros.datasets import cut_episodes
     from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.pipeline import train_and_evaluate
+    from nmrm_ros.mil.pipeline import fit
 
     cfg = load_train_config("key", prefix_fraction=0.5, max_epochs=1, members=1)
-    run = train_and_evaluate(key_bags, "csc_lstm", cfg, progress=False)
+    run = fit(key_bags, "csc_lstm", cfg, progress=False)
     _, val, test = split_indices(len(key_bags), 0)
     whole = evaluate(run.model, key_bags.subset(test))
     assert run.test_metrics["return_mse"] == pytest.approx(whole["return_mse"])

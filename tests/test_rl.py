@@ -17,7 +17,7 @@ from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import load_checkpoint, load_train_config
 from nmrm_ros.mil.checkpoint import checkpoint_paths
 from nmrm_ros.mil.online import batched_reference
-from nmrm_ros.mil.pipeline import train_and_evaluate
+from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.oracles import Oracle, make_oracle
 from nmrm_ros.rl import (EpisodeSeeds, NonMarkovianRewardWrapper, OracleRewardWrapper,
                          RewardModelWrapper, double_q_target, evaluate_agent, load_rl_config,
@@ -33,7 +33,7 @@ def checkpoints(tmp_path_factory):
     for task in ("key", "timer"):
         ds = generate_screened(task, 200, seed=0)
         path = tmp_path_factory.mktemp("ckpt") / f"{task}_csc"
-        out[task] = train_and_evaluate(ds, "csc_lstm", load_train_config(task, max_epochs=2), out=path,
+        out[task] = fit(ds, "csc_lstm", load_train_config(task, max_epochs=2), out=path,
                                        progress=False).checkpoint
     return out
 

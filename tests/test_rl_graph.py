@@ -111,7 +111,6 @@ def test_loop_launch_file_retrains_swaps_and_relabels_the_agents_replay_buffer(r
 
     from nmrm_ros.bags.reader import iter_decoded
     from nmrm_ros.mil import OnlineRewardModel, load_checkpoint
-    from nmrm_ros.mil.served_state import checkpoint_served_state
     from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
     from stable_baselines3.common.save_util import load_from_pkl
 
@@ -136,7 +135,7 @@ def test_loop_launch_file_retrains_swaps_and_relabels_the_agents_replay_buffer(r
     assert saved.pos == 6000
     model, meta = load_checkpoint(out / "checkpoints" / relabelled[-1])
     redone = copy.deepcopy(saved)
-    relabel_replay_buffer(redone, OnlineRewardModel(model, served=checkpoint_served_state(meta)), 2)
+    relabel_replay_buffer(redone, OnlineRewardModel(model, served=meta.served_state), 2)
     upto = first_after * 100  # episodes are 100 steps: transitions of episodes served up to the last relabel
     np.testing.assert_allclose(saved.rewards[:upto], redone.rewards[:upto], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(saved.observations[:upto], redone.observations[:upto], rtol=1e-5, atol=1e-6)

@@ -115,13 +115,14 @@ def test_a_labelling_session_under_ros2_launch(ros_domain, tmp_path):
     its API make the trainer write key_v001, which the reward model and the page's queue load;
     the labels are in the labels bag; Ctrl-C ends all six nodes cleanly."""
     from nmrm_ros.labelling.client import PageClient
-    from nmrm_ros.mil import save_checkpoint
+    from nmrm_ros.mil import Run
+    from nmrm_ros.mil.checkpoint import EnsembleInfo
     from nmrm_ros.mil.ensemble import init_ensemble
     from nmrm_ros.mil.models import model_config
 
     start = tmp_path / "key_start"
-    save_checkpoint(init_ensemble(model_config("csc_lstm", "key", 2), [0, 1]), start, task="key",
-                    ensemble={"members": 2, "seeds": [0, 1], "serving_member": 0})
+    Run.of(init_ensemble(model_config("csc_lstm", "key", 2), [0, 1]), "key",
+           ensemble=EnsembleInfo(2, 0, seeds=[0, 1])).save(start)
     out_dir = tmp_path / "session"
     proc = launcher("ros2", "label.launch.yaml", f"checkpoint:={start}", "episodes:=4", "port:=0",
                     "retrain_every:=2", "members:=2", "max_epochs:=3", f"out:={out_dir}", "person:=carol")

@@ -9,7 +9,7 @@ import torch
 
 from nmrm_ros.interpret.probes import probe_states
 from nmrm_ros.interpret.traces import oracle_traces
-from nmrm_ros.mil import OnlineRewardModel, build_model, load_checkpoint, model_config, save_checkpoint
+from nmrm_ros.mil import OnlineRewardModel, Run, build_model, load_checkpoint, model_config
 from nmrm_ros.mil.online import batched_reference
 from nmrm_ros.mil.served_state import check_served_state, served_size, served_states
 from nmrm_ros.rl.acceptance import memory_check
@@ -84,7 +84,7 @@ def test_the_memory_check_tells_the_served_state_from_h_alone():
 
 def test_checkpoint_round_trip_serves_the_same_state(tmp_path):
     model = hidden_memory_charger_model()
-    save_checkpoint(model, tmp_path / "m", task="charger", seed=0, split_seed=0, train_config={})
+    Run.of(model, "charger", seed=0, split_seed=0).save(tmp_path / "m")
     loaded, _ = load_checkpoint(tmp_path / "m")
     states = np.random.default_rng(0).uniform(0, 1, (50, 2)).astype(np.float32)
     _, a = batched_reference(model, states)
@@ -97,17 +97,16 @@ def test_a_checkpoint_serves_what_its_training_config_says(tmp_path):
     """served_state in config/mil_training.yaml (Moving: h) is recorded in the checkpoint and is
     what the wrapper serves unless told otherwise; a node's served_state:='' takes it too."""
     from nmrm_ros.mil import load_train_config
-    from nmrm_ros.mil.served_state import checkpoint_served_state
     from nmrm_ros.rl.wrappers import make_reward_env
 
     assert load_train_config("moving").served_state == "h"
     assert load_train_config("key").served_state == "h_tanh_c"
     model = hidden_memory_charger_model()
-    save_checkpoint(model, tmp_path / "h", task="charger", train_config={"served_state": "h"})
-    save_checkpoint(model, tmp_path / "old", task="charger", train_config={})
-    assert checkpoint_served_state(load_checkpoint(tmp_path / "old")[1]) == "h_tanh_c"
+    Run.of(model, "charger", train_config={"served_state": "h"}).save(tmp_path / "h")
+    Run.of(model, "charger").save(tmp_path / "old")
+    assert load_checkpoint(tmp_path / "old")[1].served_state == "h_tanh_c"
     with pytest.raises(ValueError, match="unknown served state 'c'"):
-        checkpoint_served_state({"train_config": {"served_state": "c"}})
+        Run.load(tmp_path / "old").meta.replace(train_config={"served_state": "c"}).served_state
     assert make_reward_env("charger", "model", tmp_path / "h").observation_space.shape == (4,)
     assert make_reward_env("charger", "model", tmp_path / "h", served="h_c").observation_space.shape == (6,)
     assert make_reward_env("charger", "model", tmp_path / "old").observation_space.shape == (6,)

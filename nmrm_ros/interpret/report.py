@@ -59,9 +59,9 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
     seed `seed`, or the first n complete episodes of `bag`); `episodes` per-episode views (bag)."""
     start = time.perf_counter()
     model, record = load_checkpoint(checkpoint)
-    task = task or record.get("task")
-    if record.get("task") not in (None, task):
-        raise ValueError(f"the checkpoint was trained on {record.get('task')!r}, not {task!r}")
+    task = task or record.task
+    if record.task != task:
+        raise ValueError(f"the checkpoint was trained on {record.task!r}, not {task!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     name = Path(checkpoint).with_suffix("").name

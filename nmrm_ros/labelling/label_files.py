@@ -170,9 +170,9 @@ def checkpoint_labels(path: str | Path) -> list[dict]:
     from ..mil.checkpoint import load_checkpoint
 
     _, meta = load_checkpoint(path)
-    labels = (meta.get("data") or {}).get("meta", {}).get("labels")
+    labels = meta.data.meta.get("labels")
     if not isinstance(labels, list):
-        source = (meta.get("data") or {}).get("source", "unknown data")
+        source = str(meta.data.source) or "unknown data"
         raise ValueError(f"{path}: records no labels (trained on {source}); checkpoints trained from "
                          f"bags or by the trainer node record theirs")
     return labels
@@ -183,5 +183,5 @@ def checkpoint_comparisons(path: str | Path) -> list[dict]:
     from ..mil.checkpoint import load_checkpoint
 
     _, meta = load_checkpoint(path)
-    found = (meta.get("data") or {}).get("meta", {}).get("comparisons")
+    found = meta.data.meta.get("comparisons")
     return found if isinstance(found, list) else []

@@ -1,31 +1,206 @@
 """Checkpoints: a plain state dict (`<name>.pt`, loaded with weights_only=True) beside JSON
-metadata (`<name>.json`: architecture and sizes, task, normalisation, training config, seed,
-metrics, package version). A checkpoint holds a `MILEnsemble` (a single model is an ensemble of
-one): the K members' stacked weights, and in its metadata "ensemble": members, seeds, serving
-member. `load_checkpoint` always returns a `MILEnsemble`; a checkpoint of one `MILRewardModel`
-written before that (no "ensemble" entry) loads as an ensemble of one. The .json carries the SHA-256 of its .pt, so a
-.pt and a .json from different trainings are refused; the normalisation lives in the weights (the
-model's buffers) and the .json copy must agree with it. A checkpoint that does not match what the
-caller asks for, or whose weights do not match its own metadata, is refused with a clear error."""
+metadata (`<name>.json`), typed here as `CheckpointMeta`: the task, the model's architecture and
+sizes, its normalisation, the ensemble (members, seeds, serving member), where its data came from
+(a `DataSource` that says how to make it again), the training config, metrics, calibration and
+provenance (package version, seeds, the SHA-256 of its weights), with a format version.
+
+A checkpoint holds a `MILEnsemble` (a single model is an ensemble of one). `Run.save`
+(`mil/run.py`) is the only writer; `load_checkpoint` is the only reader and loads every
+checkpoint written since the ensemble-of-one change (format 1: the data source a string; format
+2: an object) and the single-model checkpoints before it (as an ensemble of one). The .json
+carries the SHA-256 of its .pt, so a .pt and a .json from different trainings are refused; the
+normalisation lives in the weights (the model's buffers) and the .json copy must agree with it. A
+checkpoint that does not match what the caller asks for, or whose weights do not match its own
+metadata, is refused with a clear one-line `CheckpointError`."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
-import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 
-from .. import __version__
 from .ensemble import MILEnsemble, as_ensemble
-from .models import ModelConfig, MILRewardModel, build_model
+from .models import ModelConfig, build_model
+from .served_state import DEFAULT_SERVED_STATE, check_served_state
 
-FORMAT = "nmrm_ros.mil_checkpoint/1"
+#: the format written now (2: the data source is an object) and every one still read
+FORMAT = "nmrm_ros.mil_checkpoint/2"
+FORMATS = ("nmrm_ros.mil_checkpoint/1", FORMAT)
 
 
 class CheckpointError(ValueError):
     """A checkpoint is missing, malformed, or does not match what was asked for."""
+
+
+@dataclass(frozen=True)
+class DataSource:
+    """Where a model's training data came from, so that it can be made again.
+
+    kind: "toy" or "screened" (generated: `task`, `n` episodes, data `seed`), "bags" (recordings
+    at `paths`), "file" (a dataset .npz at paths[0]), "live" (labels collected by the trainer
+    node), "" (not recorded)."""
+
+    kind: str = ""
+    task: str = ""
+    n: int = 0
+    seed: int = 0
+    paths: tuple = ()
+
+    KINDS = ("toy", "screened", "bags", "file", "live", "")
+
+    def __post_init__(self) -> None:
+        if self.kind not in self.KINDS:
+            raise ValueError(f"unknown data source kind {self.kind!r}; one of {', '.join(map(repr, self.KINDS))}")
+
+    @classmethod
+    def generated(cls, task: str, n: int, seed: int) -> "DataSource":
+        """`n` episodes of `task` generated with data seed `seed` (a toy task's, else screened)."""
+        from ..datasets import TOY_DATASETS
+
+        return cls("toy" if task in TOY_DATASETS else "screened", task, int(n), int(seed))
+
+    @classmethod
+    def bags(cls, paths) -> "DataSource":
+        return cls("bags", paths=tuple(str(p) for p in paths))
+
+    @classmethod
+    def file(cls, path) -> "DataSource":
+        return cls("file", paths=(str(path),))
+
+    @property
+    def regenerable(self) -> bool:
+        """Whether the data can be made again from this record alone (generated, or files)."""
+        return (self.kind in ("toy", "screened") and self.n > 0) or (self.kind in ("bags", "file") and bool(self.paths))
+
+    def __str__(self) -> str:
+        """The one-line form (as format 1 wrote it): toy:key:n=100:seed=0, bags:a.mcap,b.mcap, a path."""
+        if self.kind in ("toy", "screened"):
+            return f"{self.kind}:{self.task}:n={self.n}:seed={self.seed}"
+        if self.kind == "bags":
+            return "bags:" + ",".join(self.paths)
+        if self.kind == "file":
+            return self.paths[0]
+        return "live labels" if self.kind == "live" else ""
+
+    @classmethod
+    def parse(cls, text: str) -> "DataSource":
+        """The inverse of str() (format 1's strings); anything else: a file path, or "" unknown."""
+        text = text or ""
+        parts = text.split(":")
+        if len(parts) == 4 and parts[0] in ("toy", "screened") and parts[2].startswith("n=") \
+                and parts[3].startswith("seed="):
+            try:
+                return cls(parts[0], parts[1], int(parts[2][2:]), int(parts[3][5:]))
+            except ValueError:
+                return cls()
+        if text.startswith("bags:"):
+            return cls.bags(p for p in text[5:].split(",") if p)
+        if text == "live labels":
+            return cls("live")
+        return cls.file(text) if text.endswith(".npz") else cls()
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "task": self.task, "n": self.n, "seed": self.seed, "paths": list(self.paths)}
+
+    @classmethod
+    def from_record(cls, value) -> "DataSource":
+        """Format 2's object, or format 1's string."""
+        if isinstance(value, dict):
+            return cls(str(value.get("kind", "")), str(value.get("task", "")), int(value.get("n", 0)),
+                       int(value.get("seed", 0)), tuple(str(p) for p in value.get("paths", ())))
+        return cls.parse(value if isinstance(value, str) else "")
+
+
+@dataclass(frozen=True)
+class DataInfo:
+    """The training data: its source, how many episodes, and the dataset's own metadata (labels,
+    comparisons, the generator's settings)."""
+
+    source: DataSource = DataSource()
+    n: int | None = None
+    meta: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EnsembleInfo:
+    """The members: how many, which serves its hidden state, their weight and split seeds, how
+    they were split; with keep_members "best", the candidates trained and the one kept."""
+
+    members: int = 1
+    serving_member: int = 0
+    seeds: list | None = None
+    split_seeds: list | None = None
+    split_mode: str | None = None
+    candidates: int | None = None
+    candidate_seeds: list | None = None
+    chosen: int | None = None
+    candidate_val_loss: list | None = None
+
+
+@dataclass(frozen=True)
+class CheckpointMeta:
+    """A checkpoint's metadata (its .json), typed. `extra` keeps entries this version does not
+    know (written back unchanged when a copy is saved)."""
+
+    task: str
+    model: ModelConfig
+    ensemble: EnsembleInfo = EnsembleInfo()
+    data: DataInfo = DataInfo()
+    train_config: dict = field(default_factory=dict)
+    metrics: dict = field(default_factory=dict)
+    calibration: dict | None = None
+    normalisation: dict = field(default_factory=dict)
+    seed: int | None = None
+    split_seed: int | None = None
+    package_version: str = ""
+    weights_sha256: str | None = None
+    format: str = FORMAT
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def served_state(self) -> str:
+        """What the model serves unless told otherwise: its training config's `served_state`
+        (config/mil_training.yaml, per task, chosen by the agents it gave), else the default."""
+        return check_served_state(self.train_config.get("served_state") or DEFAULT_SERVED_STATE)
+
+    def replace(self, **changes) -> "CheckpointMeta":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """The .json's record (format 2)."""
+        ens = {k: v for k, v in dataclasses.asdict(self.ensemble).items() if v is not None}
+        record = {"format": FORMAT, "package_version": self.package_version,
+                  "weights_sha256": self.weights_sha256, "task": self.task, "model": self.model.to_dict(),
+                  "normalisation": self.normalisation, "ensemble": ens,
+                  "data": {"source": self.data.source.to_dict(), "n": self.data.n, "meta": self.data.meta},
+                  "train_config": self.train_config, "metrics": self.metrics}
+        for key in ("seed", "split_seed", "calibration"):
+            if getattr(self, key) is not None:
+                record[key] = getattr(self, key)
+        return {**record, **self.extra}
+
+    @classmethod
+    def from_dict(cls, record: dict) -> "CheckpointMeta":
+        """Any format in FORMATS, and the single-model records before "ensemble" (one member).
+        KeyError/TypeError/ValueError if malformed."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        ens = record.get("ensemble") or {}
+        ens_fields = {f.name for f in dataclasses.fields(EnsembleInfo)}
+        data = record.get("data") or {}
+        return cls(
+            task=record["task"], model=ModelConfig.from_dict(record["model"]),
+            ensemble=EnsembleInfo(**{k: v for k, v in ens.items() if k in ens_fields}),
+            data=DataInfo(DataSource.from_record(data.get("source")), data.get("n"), dict(data.get("meta") or {})),
+            train_config=dict(record.get("train_config") or {}), metrics=dict(record.get("metrics") or {}),
+            calibration=record.get("calibration"), normalisation=dict(record.get("normalisation") or {}),
+            seed=record.get("seed"), split_seed=record.get("split_seed"),
+            package_version=str(record.get("package_version", "")), weights_sha256=record.get("weights_sha256"),
+            format=str(record.get("format")),
+            extra={k: v for k, v in record.items() if k not in known})
 
 
 def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
@@ -45,55 +220,21 @@ def recorded_weights_sha256(path: str | Path) -> str | None:
         return None
 
 
-def save_checkpoint(model: MILRewardModel | MILEnsemble, path: str | Path, task: str, **meta) -> Path:
-    """Write `<path>.pt` and `<path>.json` of `model` as an ensemble (a single model: of one);
-    returns the .pt path. meta["ensemble"] defaults to the members and the serving member."""
-    model = as_ensemble(model)
-    meta["ensemble"] = {"members": model.members, "serving_member": int(model.serving_member),
-                        **(meta.get("ensemble") or {})}
-    weights, info = checkpoint_paths(path)
-    weights.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(model.state_dict(), weights)
-    record = {
-        "format": FORMAT,
-        "package_version": __version__,
-        "weights_sha256": _sha256(weights),
-        "task": task,
-        "model": model.config.to_dict(),
-        "normalisation": _normalisation(model),
-        **meta,
-    }
-    tmp = info.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(record, indent=2))
-    os.replace(tmp, info)  # the metadata appears whole, after its weights
-    return weights
-
-
-#: metadata entries save_checkpoint writes itself (from the model), not from its caller
-WRITTEN_BY_SAVE = ("format", "package_version", "weights_sha256", "task", "model", "normalisation")
-
-
-def caller_meta(meta: dict) -> dict:
-    """A loaded checkpoint's metadata without what save_checkpoint derives from the model: what to
-    pass again when saving a modified copy (`save_checkpoint(copy, path, task=meta["task"], **caller_meta(meta))`)."""
-    return {k: v for k, v in meta.items() if k not in WRITTEN_BY_SAVE}
-
-
-def _normalisation(model) -> dict:
+def normalisation_of(model) -> dict:
     """The normalisation held in the weights (model buffers), as the .json records it."""
     return {"shift": model.input_shift.tolist(), "scale": model.input_scale.tolist(),
             "return_scale": float(model.return_scale)}
 
 
-def _sha256(path: Path) -> str:
+def sha256_of(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def load_checkpoint(path: str | Path, architecture: str | None = None,
                     input_size: int | None = None,
-                    task: str | None = None) -> tuple[MILEnsemble, dict]:
+                    task: str | None = None) -> tuple[MILEnsemble, CheckpointMeta]:
     """Rebuild the ensemble (a single model's checkpoint: an ensemble of one) from the metadata
-    and load the weights (eval mode).
+    and load the weights (eval mode); (ensemble, its metadata).
 
     Raises CheckpointError if a file is missing or malformed, or if the checkpoint's architecture,
     input size or task differs from the one asked for.
@@ -104,22 +245,25 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
             raise CheckpointError(f"checkpoint file missing: {p}")
     try:
         record = json.loads(info.read_text())
-        config = ModelConfig.from_dict(record["model"])
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        if record.get("format") not in FORMATS:
+            raise CheckpointError(f"{info}: unknown checkpoint format {record.get('format')!r}")
+        meta = CheckpointMeta.from_dict(record)
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        if isinstance(exc, CheckpointError):
+            raise
         raise CheckpointError(f"malformed checkpoint metadata {info}: {exc}") from None
-    if record.get("format") != FORMAT:
-        raise CheckpointError(f"{info}: unknown checkpoint format {record.get('format')!r}")
+    config = meta.model
     if architecture is not None and config.architecture != architecture:
         raise CheckpointError(f"checkpoint {weights} is a {config.architecture} model, "
                               f"not the requested {architecture}")
     if input_size is not None and config.input_size != input_size:
         raise CheckpointError(f"checkpoint {weights} takes states of size {config.input_size}, "
                               f"not {input_size}")
-    if task is not None and record.get("task") != task:
+    if task is not None and meta.task != task:
         raise CheckpointError(f"checkpoint {weights} was trained on task {record.get('task')!r}, "
                               f"not {task!r}")
-    expected = record.get("weights_sha256")
-    actual = _sha256(weights) if expected is not None else None
+    expected = meta.weights_sha256
+    actual = sha256_of(weights) if expected is not None else None
     if actual != expected:
         raise CheckpointError(f"checkpoint weights {weights} do not belong to {info} (SHA-256 "
                               f"{actual[:12]}..., the metadata expects {expected[:12]}...): "
@@ -131,7 +275,7 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
     except Exception as exc:  # noqa: BLE001 - any unpickling/format failure is a bad checkpoint
         raise CheckpointError(f"cannot read checkpoint weights {weights}: "
                               f"{type(exc).__name__}: {str(exc).strip() or 'unreadable'}") from None
-    ensemble = record.get("ensemble")
+    ensemble = record.get("ensemble")  # None: a single model, before ensembles
     try:
         if ensemble is not None:
             model = MILEnsemble(config, int(ensemble["members"]))
@@ -148,7 +292,7 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
                               f"{str(exc).splitlines()[0]}") from None
     norm = record.get("normalisation")
     if norm is not None:
-        ours = _normalisation(model)
+        ours = normalisation_of(model)
         try:
             same = all(torch.allclose(torch.tensor(norm[k], dtype=torch.float64),
                                       torch.tensor(ours[k], dtype=torch.float64), rtol=1e-5, atol=1e-7)
@@ -158,4 +302,4 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
         if not same:
             raise CheckpointError(f"{info}: its normalisation differs from the one in the weights "
                                   f"{weights} (the weights hold the one used; was the .json edited?)")
-    return as_ensemble(model).eval(), record
+    return as_ensemble(model).eval(), meta

@@ -41,8 +41,8 @@ class OnlineRewardModel:
 
     def __init__(self, model: MILRewardModel | MILEnsemble, served: str = DEFAULT_SERVED_STATE) -> None:
         self.served = check_served_state(served)
-        #: the checkpoint's metadata (`from_checkpoint`); {} for a stepper built from a model
-        self.meta: dict = {}
+        #: the checkpoint's CheckpointMeta (`from_checkpoint`); None for a stepper built from a model
+        self.meta = None
         ens = as_ensemble(model).eval()
         cfg = ens.config
         self.members = ens.members
@@ -80,23 +80,22 @@ class OnlineRewardModel:
         config's `served_state`); state_size: refuse a model of other states. `meta` holds the
         checkpoint's metadata. CheckpointError or ValueError (one line) for anything amiss."""
         from .checkpoint import load_checkpoint
-        from .served_state import checkpoint_served_state
 
         model, meta = load_checkpoint(path, task=task)
         try:
-            stepper = cls(model, served=served or checkpoint_served_state(meta))
+            stepper = cls(model, served=served or meta.served_state)
         except ValueError as exc:
             raise ValueError(f"checkpoint {path}: {exc}") from None
         if state_size is not None and stepper.input_size != state_size:
             raise ValueError(f"checkpoint {path} takes states of size {stepper.input_size}, task "
-                             f"{meta.get('task')} has {state_size}")
+                             f"{meta.task} has {state_size}")
         stepper.meta = meta
         return stepper
 
     @property
     def task(self) -> str | None:
         """The task of the checkpoint it was loaded from (None: built from a model)."""
-        return self.meta.get("task")
+        return None if self.meta is None else self.meta.task
 
     def reset(self) -> None:
         """Start a new trajectory: h' = h'_0, c' = c'_0, g_{-1} = 0, returns so far 0."""

@@ -1,39 +1,22 @@
-"""Training runs end to end: split a dataset, train an ensemble of K models (K = 1: one model),
-evaluate on the test split(s), checkpoint."""
+"""Training runs end to end: `fit` splits a dataset, trains an ensemble of K models (K = 1: one
+model), evaluates it on the test split(s) and returns a `Run` (saved if asked)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..datasets.prefixes import cut_episodes
 from ..datasets.trajectories import TrajectoryDataset
-from .checkpoint import save_checkpoint
+from .checkpoint import DataInfo, DataSource, EnsembleInfo
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .training import EnsembleTrainResult, TrainConfig, train_ensemble
+from .run import Run
+from .training import TrainConfig, train_ensemble
 
 SPLIT_MODES = ("shared", "per_member", "bootstrap")
-
-
-@dataclass
-class RunResult:
-    """One training run: a `members`-member ensemble (1: a single model) and its figures."""
-
-    model: MILEnsemble
-    train: EnsembleTrainResult
-    member_test: list  # K dicts of test metrics, each member on its own test split
-    member_val: list
-    test_metrics: dict | None  # the ensemble's (mean) prediction on the test split; None when the
-    # members have test splits of their own (split_mode per_member, K > 1)
-    val_metrics: dict | None
-    seeds: list
-    split_seeds: list
-    checkpoint: Path | None
-    chosen: int | None = None  # keep_members best: the kept candidate's index in `train` (K entries)
 
 
 def member_splits(n: int, members: int, split_seed: int, mode: str,
@@ -60,15 +43,15 @@ def member_splits(n: int, members: int, split_seed: int, mode: str,
     return triples, [split_seed] * members
 
 
-def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1,
-                       split_seed: int = 0, split_mode: str = "shared", out: str | Path | None = None,
-                       progress: bool = True, data_source: str = "", on_epoch=None,
-                       offsets: list[int] | None = None) -> RunResult:
+def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
+        split_mode: str = "shared", out: str | Path | None = None, progress: bool = True,
+        data_source: DataSource | None = None, on_epoch=None, offsets: list[int] | None = None) -> Run:
     """Train `members` models of `architecture` as one ensemble (1: a single model; member m:
     weights and shuffle seeded cfg.seed + m, split 80/10/10 per `split_mode`; offsets[m] instead
     of m if given), evaluate each member on its test split and the ensemble's mean on a shared
-    one, pick the serving member (best validation criterion) and save a checkpoint to `out` if
-    given. on_epoch: see `train_ensemble`. cfg.prefix_fraction > 0: the training and validation
+    one, pick the serving member (best validation criterion) and return the `Run` (saved to `out`
+    if given; its metrics: test, val, member_test, member_val, best epochs...). data_source: where
+    `ds` came from (recorded, so that `nmrm evaluate` can make it again). on_epoch: see `train_ensemble`. cfg.prefix_fraction > 0: the training and validation
     episodes are those of `cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed)` (some end early,
     labelled with the return earned by then); the test split is whole episodes. cfg.keep_members
     "best": of the `members` trained, only the one best on validation is kept (a 1-member
@@ -97,16 +80,13 @@ def train_and_evaluate(ds: TrajectoryDataset, architecture: str, cfg: TrainConfi
         test, val = member_test[0], member_val[0]
     elif split_mode != "per_member":
         test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, trained_on.subset(splits[0][1]))
-    path = None
+    run = Run.of(
+        ens, ds.task, train=result, seed=cfg.seed, split_seed=split_seed, train_config=cfg.to_dict(),
+        data=DataInfo(data_source or DataSource(), len(ds), ds.meta),
+        ensemble=EnsembleInfo(members, serving, seeds, split_seeds, split_mode, **candidates),
+        metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
+                 "best_epochs": result.best_epochs, "still_improving": result.still_improving,
+                 "epochs_run": result.epochs_run, "seconds": result.seconds})
     if out is not None:
-        path = save_checkpoint(
-            ens, out, task=ds.task, seed=cfg.seed, split_seed=split_seed,
-            train_config=cfg.to_dict(),
-            data={"source": data_source, "n": len(ds), "meta": ds.meta},
-            ensemble={"members": members, "seeds": seeds, "split_seeds": split_seeds,
-                      "split_mode": split_mode, "serving_member": serving, **candidates},
-            metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
-                     "best_epochs": result.best_epochs, "still_improving": result.still_improving,
-                     "epochs_run": result.epochs_run, "seconds": result.seconds})
-    return RunResult(ens, result, member_test, member_val, test, val, seeds, split_seeds, path,
-                     candidates.get("chosen"))
+        run.save(out)
+    return run

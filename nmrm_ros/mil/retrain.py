@@ -23,9 +23,10 @@ import numpy as np
 import torch
 
 from ..datasets.trajectories import TrajectoryDataset
-from .checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from .checkpoint import CheckpointError, DataInfo, DataSource, EnsembleInfo, load_checkpoint
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
+from .run import Run
 from .training import load_train_config, train_ensemble
 
 
@@ -98,12 +99,13 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
                "val_return_std": val_metrics.get("return_std", 0.0), "best_epochs": result.best_epochs,
                "epochs_run": result.epochs_run, "start": start,
                "seconds": round(time.perf_counter() - t0, 2)}
-    path = save_checkpoint(
-        ens, out, task=ds.task, seed=seed, split_seed=seed, train_config=cfg.to_dict(),
-        data={"source": "live labels", "n": len(ds), "meta": ds.meta},
-        ensemble={"members": members, "seeds": seeds, "split_seeds": [seed] * members,
-                  "split_mode": "bootstrap" if feedback == "returns" else "shared", "serving_member": serving},
+    run = Run.of(
+        ens, ds.task, train=result, seed=seed, split_seed=seed, train_config=cfg.to_dict(),
+        data=DataInfo(DataSource("live"), len(ds), ds.meta),
+        ensemble=EnsembleInfo(members, serving, seeds, [seed] * members,
+                              "bootstrap" if feedback == "returns" else "shared"),
         metrics={"val": val_metrics, "member_val_loss": member_val, **summary})
+    path = run.save(out)
     summary["checkpoint"] = str(path)
     return summary
 

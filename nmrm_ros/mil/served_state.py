@@ -32,13 +32,6 @@ SERVED_STATES = ("h_tanh_c", "h_c", "h")
 DEFAULT_SERVED_STATE = "h_tanh_c"
 
 
-def checkpoint_served_state(meta: dict) -> str:
-    """What a checkpoint serves unless told otherwise: its training config's `served_state`
-    (config/mil_training.yaml, per task, chosen by the agents it gave), else DEFAULT_SERVED_STATE."""
-    kind = (meta.get("train_config") or {}).get("served_state") or DEFAULT_SERVED_STATE
-    return check_served_state(kind)
-
-
 def check_served_state(kind: str) -> str:
     """`kind` if it is one of SERVED_STATES, else a ValueError naming the choices."""
     if kind not in SERVED_STATES:

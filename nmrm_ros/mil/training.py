@@ -32,7 +32,7 @@ training labels, and of its validation labels, are swapped between trajectories
 trajectories' predicted returns, `preference_loss`; the CSC model's return is the sum of its
 rewards, so the loss reaches every step) or `both` (the return MSE plus `preference_weight` times
 the cross-entropy; trajectories without a return label, NaN, are left out of the MSE).
-`prefix_fraction` = f > 0 (`pipeline.train_and_evaluate`): a seeded fraction f of the episodes
+`prefix_fraction` = f > 0 (`pipeline.fit`): a seeded fraction f of the episodes
 is cut at a random step and labelled with the return earned by then (`datasets.prefixes`; needs
 the oracle's per-step rewards), for training and validation; the test split stays whole. Returns of
 whole episodes cannot say *when* credit is earned; prefixes can.
@@ -112,7 +112,7 @@ class TrainConfig:
     min_improvement: float = 0.0  # progress: validation loss below the last progress epoch's by this fraction (resets the clocks)
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
-    prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.train_and_evaluate)
+    prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.fit)
     keep_members: str = "all"  # all: the members are served as their mean; best: only the best on validation is kept
 
     def lr_at(self, epoch: float) -> float:

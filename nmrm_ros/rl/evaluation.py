@@ -92,13 +92,13 @@ def served_state_of(model, task: str, checkpoint, meta: dict) -> str:
     if meta.get("served_state"):  # "hc": the raw [h', c'], as policies of 2026-12-02 named it
         return {"hc": "h_c"}.get(meta["served_state"], meta["served_state"])
     from ..mil import load_checkpoint
-    from ..mil.served_state import checkpoint_served_state, served_size
+    from ..mil.served_state import served_size
     from ..tasks import task_info
 
     reward_model, checkpoint_meta = load_checkpoint(checkpoint, task=task)
     k = reward_model.hidden_size
     extra = model.observation_space.shape[0] - task_info(task).state_size
-    own = checkpoint_served_state(checkpoint_meta)
+    own = checkpoint_meta.served_state
     if extra == served_size(k, own):
         return own
     if extra == 2 * k:

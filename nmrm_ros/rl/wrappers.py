@@ -27,7 +27,7 @@ from typing import Protocol
 import gymnasium as gym
 import numpy as np
 
-from ..oracles import Oracle, OracleTracker, make_oracle
+from ..oracles import Oracle, make_oracle
 
 REWARD_KINDS = ("model", "oracle", "oracle-no-hidden")
 
