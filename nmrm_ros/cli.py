@@ -125,14 +125,14 @@ def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool,
     from tqdm import tqdm
 
     from .datasets import generate_screened
-    from .tasks import check_task, is_task_spec
+    from .tasks import task_info
 
-    _bad_input(check_task, task)
+    screening = _bad_input(task_info, task).screening
     kwargs: dict = {"pool_size": pool_size, "bins": bins, "policy": str(policy) if policy else None}
-    if oracle or is_task_spec(task):
+    if oracle or screening == "return_bins":
         bar = tqdm(total=pool_size or 4 * n, desc=f"rolling out {task}", unit="ep", leave=False, disable=None)
         kwargs["progress"] = lambda done: bar.update(done - bar.n)
-    elif task != "lunar_lander":
+    elif screening == "classes":
         kwargs["key_fourth_class"] = key_fourth_class
         bar = tqdm(total=n, desc=f"screening {task}", unit="traj", leave=False, disable=None)
         kwargs["progress"] = lambda kept, examined: (bar.update(kept - bar.n),
@@ -241,9 +241,9 @@ def demo(
     and compare with the oracle, then train a DQN agent through the graph on the served reward and
     judge its greedy policy by the oracle against a random policy."""
     from .demo import DemoError, run_demo
-    from .tasks import NAVIGATION_TASKS
+    from .tasks import NAVIGATION_TASKS, task_info
 
-    if task not in NAVIGATION_TASKS:
+    if not _bad_input(task_info, task).navigation:
         raise typer.BadParameter(f"the demo runs a navigation task {NAVIGATION_TASKS}, not {task!r}")
     try:
         run_demo(task, live_episodes, screened, epochs, agent_episodes, seed, out, echo=typer.echo)

@@ -16,117 +16,41 @@ Class ids (int64) and their meaning:
 - charger: num_treasure * 20 + (charge_bin - 1), charge_bin = min(floor(mean charge / 0.05) + 1,
            20) over the steps in the treasure (bin 1 if never in it), 101 x 20 classes
 - lunar_lander: pad_bin * 6 + take_off * 3 + hover_bin, pad_bin in {0, 1..49, 50+} -> 0, 1, 2;
-           hover_bin in {0, 1..19, 20+} -> 0, 1, 2 (see `lunar_lander_classes`)
+           hover_bin in {0, 1..19, 20+} -> 0, 1, 2 (see `tasks.lunar_lander.lunar_lander_classes`)
 """
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..oracles import make_oracle
 from ..oracles.base import OracleLabels
-from ..tasks import NAVIGATION_TASKS, check_task
-from ..tasks.navigation import EPISODE_LENGTH, TREASURE_ZONE, rollout_random
+from ..tasks import check_task, task_info
+from ..tasks.info import ScreeningSpec
+from ..tasks.navigation import EPISODE_LENGTH, rollout_random
 from .trajectories import TrajectoryDataset, concatenate
 
 KEY_CLASS_NAMES = ("no_key", "key_no_treasure", "treasure", "treasure_no_key")
 
 
-@dataclass(frozen=True)
-class ScreeningSpec:
-    """Per-class limits of a task: `limits[c]` is the max fraction for class c, or `default`."""
-
-    n_classes: int
-    default: float
-    limits: dict | None = None
-
-    def max_count(self, cls: int, n_target: int) -> int:
-        p = self.default if self.limits is None else self.limits.get(cls, self.default)
-        return max(1, math.ceil(p * n_target - 1e-9))
-
-
 def screening_spec(task: str, key_fourth_class: bool = False) -> ScreeningSpec:
-    """The paper's classes and limits; the Key task's optional fourth class gets limits
-    0.2 / 0.2 / 0.4 / 0.2 (no_key, key_no_treasure, treasure, treasure_no_key): the paper's 1:1:2
-    ratio with a share for the new class."""
-    check_task(task)
-    if task == "timer":
-        return ScreeningSpec(51 * 51, 0.002)
-    if task == "moving":
-        return ScreeningSpec(101, 0.05)
-    if task == "key":
-        if key_fourth_class:
-            return ScreeningSpec(4, 0.2, {0: 0.2, 1: 0.2, 2: 0.4, 3: 0.2})
-        return ScreeningSpec(3, 0.25, {0: 0.25, 1: 0.25, 2: 0.5})
-    if task == "charger":
-        return ScreeningSpec(101 * 20, 0.002)
-    return ScreeningSpec(18, 0.2)
+    """The classes and limits of a task screened by class (its TaskInfo's rule)."""
+    return _class_rule(task).screening_classes(key_fourth_class)
 
 
 def classify(task: str, states: np.ndarray, labels: OracleLabels,
              key_fourth_class: bool = False) -> np.ndarray:
     """Class ids (n,) of labelled trajectories; states (n, L, d) are the labelled instances."""
-    check_task(task)
-    if task == "lunar_lander":
-        return lunar_lander_classes(states, labels)
-    live = np.arange(states.shape[1])[None, :] < labels.lengths[:, None]
-    in_treasure = TREASURE_ZONE.contains(states) & live
-    if task == "timer":
-        neg = (in_treasure & (labels.rewards < 0)).sum(axis=1)
-        pos = (in_treasure & (labels.rewards > 0)).sum(axis=1)
-        return neg * 51 + pos
-    if task == "moving":
-        return (labels.rewards > 0).sum(axis=1)
-    if task == "key":
-        has_key = labels.hidden[:, :, 0] > 0
-        got_key = (has_key & live).any(axis=1)
-        treasure_with_key = (in_treasure & has_key).any(axis=1)
-        cls = np.where(treasure_with_key, 2, np.where(got_key, 1, 0))
-        if key_fourth_class:
-            cls = np.where((cls == 0) & in_treasure.any(axis=1), 3, cls)
-        return cls
-    # charger
-    num = in_treasure.sum(axis=1)
-    charge_sum = (labels.hidden[:, :, 0] * in_treasure).sum(axis=1)
-    mean = np.divide(charge_sum, num, out=np.zeros_like(charge_sum), where=num > 0)
-    charge_bin = np.minimum(np.floor(mean / 0.05 + 1e-9).astype(np.int64) + 1, 20)
-    return num * 20 + (charge_bin - 1)
+    return _class_rule(task).classify(states, labels, key_fourth_class)
 
 
-def lunar_lander_classes(states: np.ndarray, labels: OracleLabels) -> np.ndarray:
-    """pad_bin x take_off x hover_bin (App. D.2). Hover steps are counted from the step the pad
-    count reaches 50 if it does, else from the first step off the pad after the first landing."""
-    from ..oracles.lunar_lander import r_hover, r_no_contact, r_pad
-
-    n, horizon = states.shape[:2]
-    out = np.zeros(n, dtype=np.int64)
-    for i in range(n):
-        length = int(labels.lengths[i])
-        s = np.asarray(states[i, :length], dtype=np.float64)
-        pad = r_pad(s) == 1
-        pad_steps = int(pad.sum())
-        if pad_steps == 0:
-            continue  # class 0: never on the pad, no take-off, no hover
-        first_pad = int(np.argmax(pad))
-        off = (~pad) & (np.arange(length) > first_pad)
-        airborne = (r_no_contact(s) == 1) & (np.arange(length) > first_pad)
-        take_off = int(airborne.any())
-        reached = np.flatnonzero(labels.hidden[i, :length, 0] >= 50)
-        if reached.size:
-            start = int(reached[0])
-        elif off.any():
-            start = int(np.argmax(off))
-        else:
-            start = length
-        hover = int((r_hover(s[start:]) == 1).sum())
-        pad_bin = 1 if pad_steps < 50 else 2
-        hover_bin = 0 if hover == 0 else (1 if hover < 20 else 2)
-        out[i] = pad_bin * 6 + take_off * 3 + hover_bin
-    return out
+def _class_rule(task: str):
+    info = task_info(task)
+    if info.classify is None:
+        raise ValueError(f"task {task!r} is screened by return bins, not by classes")
+    return info
 
 
 class Screener:
@@ -165,8 +89,9 @@ def screen_navigation(task: str, n_target: int = 5000, seed: int = 0, batch: int
     Raises RuntimeError if `max_draws` trajectories were examined without filling the dataset.
     `progress(kept, examined)` is called after each batch if given.
     """
-    if task not in NAVIGATION_TASKS:
-        raise ValueError(f"screen_navigation takes a navigation task {NAVIGATION_TASKS}, got {task!r}")
+    if task_info(task).screening != "classes":
+        raise ValueError(f"screen_navigation takes a task screened by classes of random rollouts (a navigation "
+                         f"task), got {task!r}")
     rng = np.random.default_rng(seed)
     oracle = make_oracle(task)
     spec = screening_spec(task, key_fourth_class)
@@ -286,10 +211,8 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
     2 * n_target; with kwargs policy, an oracle agent's policy.zip, a fifth of them its episodes); a task of the user's (a task spec) or any task with a user's `oracle`
     ("<module>:<function>"), return bins over a pool of a random policy or of kwargs policy (a
     policy.zip; `return_screening`; kwargs pool_size, bins, policy)."""
-    from ..tasks import is_task_spec
-
-    check_task(task)
-    if oracle or is_task_spec(task):
+    info = task_info(task)
+    if oracle or info.screening == "return_bins":
         from .return_screening import screen_by_return
 
         from .return_screening import load_screening_policy
@@ -302,7 +225,7 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
                                 policy_name=str(policy or "random"))
     kwargs.pop("bins", None)
     policy = kwargs.pop("policy", None)
-    if task == "lunar_lander":
+    if info.screening == "pool":
         pool_size = kwargs.pop("pool_size", None) or 2 * n_target
         kwargs.pop("progress", None)
         return screen_lunar_lander(pool_size=pool_size, seed=seed, n_target=n_target, agent=policy, **kwargs)

@@ -15,9 +15,9 @@ from matplotlib.patches import Rectangle  # noqa: E402
 from ..oracles.lunar_lander import HOVER_ZONE, PAD_HALF_WIDTH  # noqa: E402
 from ..tasks.navigation import CHARGE_Y_MAX, KEY_ZONE, SPAWN_ZONES, TREASURE_ZONE  # noqa: E402
 from .embeddings import ORACLE_VARIABLE, Embedding  # noqa: E402
+from ..tasks import task_info  # noqa: E402
 from .reward_maps import extent  # noqa: E402
 
-NAVIGATION = ("timer", "moving", "key", "charger")
 
 
 def draw_arena(ax, task: str) -> None:
@@ -60,10 +60,10 @@ def draw_lander_zones(ax) -> None:
 
 def draw_zones(ax, task: str) -> None:
     """The task's arena (navigation) or screen (Lunar Lander) with its zones."""
-    if task == "lunar_lander":
-        draw_lander_zones(ax)
-    else:
+    if task_info(task).navigation:
         draw_arena(ax, task)
+    else:
+        draw_lander_zones(ax)
 
 
 def _save(fig, path: Path) -> Path:
@@ -121,7 +121,7 @@ def trace_figure(task: str, title: str, states: np.ndarray, rewards: dict, hidde
     panels = 3 if hidden is not None and hidden.shape[-1] > 0 else 2
     fig, axes = plt.subplots(1, panels, figsize=(4.4 * panels, 4))
     ax = axes[0]
-    if task in NAVIGATION or task == "lunar_lander":
+    if task_info(task).arena is not None:
         draw_zones(ax, task)
         ax.legend(loc="lower right", fontsize=6)
     ax.plot(states[:, 0], states[:, 1], "-", color="black", lw=0.8)

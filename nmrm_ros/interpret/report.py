@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..mil import load_checkpoint
+from ..tasks import task_info
 from . import plots
 from .embeddings import hidden_embedding
 from .episode_view import read_episodes
@@ -83,8 +84,7 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
         figures.append(Figure("Reward maps", plots.reward_map_figure(task, maps, out / "reward_maps.png"),
                               "Reward for one step at each (x, y) after a context (a probe cut at "
                               "step t); learnt above, oracle below." + (
-                                  " The lander at rest there (velocities and angle 0); legs on the "
-                                  "ground on the bottom row only." if task == "lunar_lander" else "")))
+                                  f" {task_info(task).map_note}" if task_info(task).map_note else "")))
 
     for probe, path in probe_states(task):
         rewards, hidden = model_traces(model, path)

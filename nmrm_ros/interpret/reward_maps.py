@@ -40,24 +40,26 @@ CONTEXTS: dict = {
     "lunar_lander": (Context("not landed yet", "correct", 100), Context("25 steps on the pad", "correct", 181),
                      Context("took off after 50 on the pad", "correct", 300)),
 }
-LANDER_EXTENT = (-1.0, 1.0, 0.0, 1.5)  # x_min, x_max, y_min, y_max of Lunar Lander's maps
 
 
 def extent(task: str | None = None) -> tuple[float, float, float, float]:
-    """(x_min, x_max, y_min, y_max) of a task's maps."""
-    return LANDER_EXTENT if task == "lunar_lander" else (0.0, 1.0, 0.0, 1.0)
+    """(x_min, x_max, y_min, y_max) of a task's maps (its TaskInfo's arena; the unit square without one)."""
+    from ..tasks import task_info
+
+    return (task_info(task).arena if task else None) or (0.0, 1.0, 0.0, 1.0)
 
 
 def grid(n: int = 41, task: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(xs (n,), ys (n,), points (n * n, d) float32 in row-major [iy, ix] order): navigation (d = 2)
     over [0, 1]^2; Lunar Lander (d = 8) as the module says."""
+    from ..tasks import task_info
+
     x0, x1, y0, y1 = extent(task)
     xs, ys = np.linspace(x0, x1, n), np.linspace(y0, y1, n)
     gx, gy = np.meshgrid(xs, ys)
     points = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    if task == "lunar_lander":
-        contact = (points[:, 1] <= y0)[:, None].astype(np.float64)
-        points = np.concatenate([points, np.zeros((len(points), 4)), contact, contact], axis=1)
+    if task:
+        points = task_info(task).states_at(points)
     return xs, ys, points.astype(np.float32)
 
 

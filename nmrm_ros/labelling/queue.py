@@ -31,13 +31,6 @@ import numpy as np
 
 from ..tasks import task_info
 
-#: returns a label may take, per task: T = 100 steps of rewards in [0, 1] (Timer: -1 for each of
-#: the first 50, +1 after);
-#: Lunar Lander's per-step rewards are bounded by its oracle's terms, returns stay within ±1000
-RETURN_RANGES = {"timer": (-50.0, 50.0), "moving": (0.0, 100.0), "key": (0.0, 100.0),
-                 "charger": (0.0, 100.0), "lunar_lander": (-1000.0, 1000.0)}
-
-
 class LabelError(ValueError):
     """A label that cannot be accepted (unknown episode, not a finite number, out of range)."""
 
@@ -45,8 +38,7 @@ class LabelError(ValueError):
 def return_range(task: str) -> tuple:
     """(low, high) of the returns a label of `task` may take; (None, None) for a task of the
     user's (a task spec), whose range we do not know: any finite number."""
-    task_info(task)  # validates the name
-    return RETURN_RANGES.get(task, (None, None))
+    return task_info(task).return_range
 
 
 @dataclass

@@ -181,12 +181,10 @@ class MILRewardModel(nn.Module):
 
 
 def family_of(task: str) -> str:
-    """The layer-size family of a task or toy dataset."""
-    if task == "lunar_lander":
-        return "lunar_lander"
-    if task in ("timer", "moving", "key", "charger"):
-        return "navigation"
-    return "toy"
+    """The layer-size family of a task (its TaskInfo's) or a toy dataset ("toy")."""
+    from ..tasks import TASKS, task_info
+
+    return task_info(task).family if task in TASKS else "toy"  # a user's task: its config's widths, else toy
 
 
 def model_config(architecture: str, task: str, input_size: int, dropout: float = 0.0,

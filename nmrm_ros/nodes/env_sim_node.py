@@ -37,7 +37,6 @@ import time
 import numpy as np
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, TrajectoryReturn
-from ..tasks import NAVIGATION_TASKS
 
 from ..ros.messages import as_vector, to_float_list
 from ..ros.node_base import NmrmNode
@@ -325,7 +324,7 @@ class EnvSimNode(NmrmNode):
             if a != int(a) or not 0 <= a < self.info.action_size:
                 raise ValueError(f"discrete action {a} is not an index in 0..{self.info.action_size - 1}")
             return int(a)
-        size = 2 if self.task in NAVIGATION_TASKS else self.info.action_size
+        size = 2 if self.info.navigation else self.info.action_size  # the navigation tasks' continuous variant: (dx, dy)
         return as_vector(values, size, "action").astype(np.float32)
 
 

@@ -8,27 +8,15 @@ Tasks: the 2D navigation tasks `timer`, `moving`, `key`, `charger` (one simulato
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import lru_cache
 
 import gymnasium as gym
 
 from .gym_task import TaskSpecError, is_task_spec, make_gym_task_env
+from .info import TaskInfo
 
 NAVIGATION_TASKS = ("timer", "moving", "key", "charger")
 TASKS = NAVIGATION_TASKS + ("lunar_lander",)
-
-
-@dataclass(frozen=True)
-class TaskInfo:
-    """Static facts of a task: state size, action space kind and size, episode length T (the
-    longest episode, for tasks whose episodes vary in length)."""
-
-    name: str
-    state_size: int
-    discrete: bool
-    action_size: int  # number of discrete actions, or the continuous action dimension
-    episode_length: int
 
 
 def check_task(task: str) -> str:
@@ -50,22 +38,24 @@ def _spec_info(task: str) -> TaskInfo:
         act = env.action_space
         discrete = isinstance(act, gym.spaces.Discrete)
         return TaskInfo(task, int(env.observation_space.shape[0]), discrete,
-                        int(act.n) if discrete else int(act.shape[0]), env.episode_length)
+                        int(act.n) if discrete else int(act.shape[0]), env.episode_length, renders=True)
     finally:
         env.close()
 
 
 def task_info(task: str) -> TaskInfo:
+    """What the package knows of `task` (`TaskInfo`: state layout, actions, model family, label
+    range, arena, screening rule, frames); ValueError (one line) for an unknown task."""
     if is_task_spec(task):
         return _spec_info(task)
     check_task(task)
-    if task == "lunar_lander":
-        from .lunar_lander import EPISODE_LENGTH, STATE_SIZE
+    if task in NAVIGATION_TASKS:
+        from .navigation import navigation_task_info
 
-        return TaskInfo(task, STATE_SIZE, False, 2, EPISODE_LENGTH)
-    from .navigation import EPISODE_LENGTH, N_ACTIONS
+        return navigation_task_info(task)
+    from .lunar_lander import TASK_INFO
 
-    return TaskInfo(task, 2, True, N_ACTIONS, EPISODE_LENGTH)
+    return TASK_INFO
 
 
 def make_env(task: str, continuous: bool = False, render: bool = False, **kwargs) -> gym.Env:
@@ -76,15 +66,15 @@ def make_env(task: str, continuous: bool = False, render: bool = False, **kwargs
             raise TaskSpecError(f"task {task!r}: continuous applies to the navigation tasks only; "
                                 f"a Gymnasium env's action space is its own")
         return make_gym_task_env(task, render=render)
-    check_task(task)
-    if render and task != "lunar_lander":
+    info = task_info(task)
+    if render and not info.renders:
         raise TaskSpecError(f"task {task!r} renders no frames (the labelling page draws its arena)")
     if render:
         kwargs["render_mode"] = "rgb_array"
-    if task == "lunar_lander":
-        from .lunar_lander import RewardlessLunarLander
+    if info.navigation:
+        from .navigation import NavigationEnv
 
-        return RewardlessLunarLander(**kwargs)
-    from .navigation import NavigationEnv
+        return NavigationEnv(task=task, continuous=continuous, **kwargs)
+    from .lunar_lander import RewardlessLunarLander
 
-    return NavigationEnv(task=task, continuous=continuous, **kwargs)
+    return RewardlessLunarLander(**kwargs)

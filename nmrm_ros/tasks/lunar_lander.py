@@ -181,3 +181,69 @@ def rollout_lunar_lander(n: int, seed: int, policy: str = "scripted",
         out.append(run_episode(env, controller or random_policy, seed + i, episode_length))
     env.close()
     return out
+
+
+# --- what the package knows of the task (its TaskInfo) and its screening classes ---
+
+#: x_min, x_max, y_min, y_max of the screen the views draw
+ARENA = (-1.0, 1.0, 0.0, 1.5)
+
+
+def screening_classes(key_fourth_class: bool = False):
+    """18 classes, each at most a fifth of the dataset (App. D.2; `lunar_lander_classes`)."""
+    from .info import ScreeningSpec
+
+    return ScreeningSpec(18, 0.2)
+
+
+def lunar_lander_classes(states: np.ndarray, labels, key_fourth_class: bool = False) -> np.ndarray:
+    """pad_bin x take_off x hover_bin (App. D.2). Hover steps are counted from the step the pad
+    count reaches 50 if it does, else from the first step off the pad after the first landing."""
+    from ..oracles.lunar_lander import r_hover, r_no_contact, r_pad
+
+    n, horizon = states.shape[:2]
+    out = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        length = int(labels.lengths[i])
+        s = np.asarray(states[i, :length], dtype=np.float64)
+        pad = r_pad(s) == 1
+        pad_steps = int(pad.sum())
+        if pad_steps == 0:
+            continue  # class 0: never on the pad, no take-off, no hover
+        first_pad = int(np.argmax(pad))
+        off = (~pad) & (np.arange(length) > first_pad)
+        airborne = (r_no_contact(s) == 1) & (np.arange(length) > first_pad)
+        take_off = int(airborne.any())
+        reached = np.flatnonzero(labels.hidden[i, :length, 0] >= 50)
+        if reached.size:
+            start = int(reached[0])
+        elif off.any():
+            start = int(np.argmax(off))
+        else:
+            start = length
+        hover = int((r_hover(s[start:]) == 1).sum())
+        pad_bin = 1 if pad_steps < 50 else 2
+        hover_bin = 0 if hover == 0 else (1 if hover < 20 else 2)
+        out[i] = pad_bin * 6 + take_off * 3 + hover_bin
+    return out
+
+
+def map_states(points: np.ndarray) -> np.ndarray:
+    """The lander at rest at each (x, y) of `points` (N, 2): velocities and angle 0, both legs on
+    the ground on the screen's bottom row only -> (N, 8)."""
+    contact = (points[:, 1] <= ARENA[2])[:, None].astype(np.float64)
+    return np.concatenate([points, np.zeros((len(points), 4)), contact, contact], axis=1)
+
+
+def _task_info():
+    from .info import TaskInfo
+
+    # returns stay within +-1000: the per-step rewards are bounded by the oracle's terms
+    return TaskInfo("lunar_lander", STATE_SIZE, False, 2, EPISODE_LENGTH, family="lunar_lander",
+                    return_range=(-1000.0, 1000.0), arena=ARENA, screening="pool",
+                    screening_classes=screening_classes, classify=lunar_lander_classes, renders=True,
+                    map_states=map_states, map_note="The lander at rest there (velocities and angle 0); legs "
+                                                    "on the ground on the bottom row only.")
+
+
+TASK_INFO = _task_info()

@@ -148,3 +148,65 @@ class NavigationEnv(gym.Env):
         obs = self._sim.step(np.asarray(action)[None])[0]
         self._t += 1
         return obs, 0.0, False, self._t >= self.episode_length, {"t": self._t}
+
+
+# --- what the package knows of the four tasks (their TaskInfo) and their screening classes ---
+
+#: returns a label may take: T = 100 steps of rewards in [0, 1] (Timer: -1 for each of the first 50, +1 after)
+RETURN_RANGES = {"timer": (-50.0, 50.0), "moving": (0.0, 100.0), "key": (0.0, 100.0), "charger": (0.0, 100.0)}
+
+
+def navigation_task_info(task: str):
+    """The TaskInfo of navigation task `task` (timer | moving | key | charger)."""
+    from functools import partial
+
+    from .info import TaskInfo
+
+    return TaskInfo(task, 2, True, N_ACTIONS, EPISODE_LENGTH, family="navigation",
+                    return_range=RETURN_RANGES[task], arena=(0.0, 1.0, 0.0, 1.0), screening="classes",
+                    screening_classes=partial(screening_classes, task), classify=partial(classify, task),
+                    navigation=True)
+
+
+def screening_classes(task: str, key_fourth_class: bool = False):
+    """The paper's classes and limits (App. D.2); the Key task's optional fourth class gets limits
+    0.2 / 0.2 / 0.4 / 0.2 (no_key, key_no_treasure, treasure, treasure_no_key): the paper's 1:1:2
+    ratio with a share for the new class."""
+    from .info import ScreeningSpec
+
+    if task == "timer":
+        return ScreeningSpec(51 * 51, 0.002)
+    if task == "moving":
+        return ScreeningSpec(101, 0.05)
+    if task == "key":
+        if key_fourth_class:
+            return ScreeningSpec(4, 0.2, {0: 0.2, 1: 0.2, 2: 0.4, 3: 0.2})
+        return ScreeningSpec(3, 0.25, {0: 0.25, 1: 0.25, 2: 0.5})
+    return ScreeningSpec(101 * 20, 0.002)  # charger
+
+
+def classify(task: str, states: np.ndarray, labels, key_fourth_class: bool = False) -> np.ndarray:
+    """Class ids (n,) of oracle-labelled trajectories (`labels`: OracleLabels); states (n, L, 2)
+    are the labelled instances (the classes: `nmrm_ros.datasets.screening`'s docstring)."""
+    live = np.arange(states.shape[1])[None, :] < labels.lengths[:, None]
+    in_treasure = TREASURE_ZONE.contains(states) & live
+    if task == "timer":
+        neg = (in_treasure & (labels.rewards < 0)).sum(axis=1)
+        pos = (in_treasure & (labels.rewards > 0)).sum(axis=1)
+        return neg * 51 + pos
+    if task == "moving":
+        return (labels.rewards > 0).sum(axis=1)
+    if task == "key":
+        has_key = labels.hidden[:, :, 0] > 0
+        got_key = (has_key & live).any(axis=1)
+        treasure_with_key = (in_treasure & has_key).any(axis=1)
+        cls = np.where(treasure_with_key, 2, np.where(got_key, 1, 0))
+        if key_fourth_class:
+            cls = np.where((cls == 0) & in_treasure.any(axis=1), 3, cls)
+        return cls
+    # charger
+    num = in_treasure.sum(axis=1)
+    charge_sum = (labels.hidden[:, :, 0] * in_treasure).sum(axis=1)
+    mean = np.divide(charge_sum, num, out=np.zeros_like(charge_sum), where=num > 0)
+    charge_bin = np.minimum(np.floor(mean / 0.05 + 1e-9).astype(np.int64) + 1, 20)
+    return num * 20 + (charge_bin - 1)
