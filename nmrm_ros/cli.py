@@ -128,7 +128,12 @@ def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool,
     from .tasks import task_info
 
     screening = _bad_input(task_info, task).screening
-    kwargs: dict = {"pool_size": pool_size, "bins": bins, "policy": str(policy) if policy else None}
+    if policy and (oracle or screening != "classes"):  # the dataset code takes the loaded agent
+        from .rl.agent_episodes import AgentEpisodes, load_screening_policy
+
+        policy = AgentEpisodes(policy) if screening == "pool" and not oracle else \
+            _bad_input(load_screening_policy, str(policy), task, seed)
+    kwargs: dict = {"pool_size": pool_size, "bins": bins, "policy": policy or None}
     if oracle or screening == "return_bins":
         bar = tqdm(total=pool_size or 4 * n, desc=f"rolling out {task}", unit="ep", leave=False, disable=None)
         kwargs["progress"] = lambda done: bar.update(done - bar.n)

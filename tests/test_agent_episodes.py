@@ -7,7 +7,7 @@ import pytest
 import torch
 from graph_helpers import executable
 
-from nmrm_ros.datasets.agent_episodes import rollout_agent
+from nmrm_ros.rl.agent_episodes import AgentEpisodes, rollout_agent
 from nmrm_ros.datasets.screening import screen_lunar_lander
 from nmrm_ros.rl import train_agent
 
@@ -44,10 +44,10 @@ def test_bad_agents_are_one_line_errors(oracle_agent, tmp_path):
 
 
 def test_lunar_lander_pool_with_agent_episodes(oracle_agent):
-    ds = screen_lunar_lander(pool_size=6, seed=0, n_target=4, agent=str(oracle_agent), agent_fraction=0.5)
+    ds = screen_lunar_lander(pool_size=6, seed=0, n_target=4, agent=AgentEpisodes(oracle_agent), agent_fraction=0.5)
     assert len(ds) == 4 and ds.meta["agent"] == str(oracle_agent) and ds.meta["agent_fraction"] == 0.5
     with pytest.raises(ValueError, match="agent_fraction must be in"):
-        screen_lunar_lander(pool_size=6, seed=0, n_target=4, agent=str(oracle_agent), agent_fraction=0.0)
+        screen_lunar_lander(pool_size=6, seed=0, n_target=4, agent=AgentEpisodes(oracle_agent), agent_fraction=0.0)
 
 
 def test_dataset_screen_takes_an_oracle_agent_into_lunar_landers_pool(oracle_agent, tmp_path):

@@ -176,7 +176,7 @@ def _bag_with_chunks(tmp_path, n=60):
 
 
 def _chunk_offsets(file):
-    from nmrm_ros.bags.repair import scan_chunks
+    from nmrm_ros.bags.chunks import scan_chunks
 
     return [c.offset for c in scan_chunks(file).chunks]
 

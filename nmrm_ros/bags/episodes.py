@@ -31,6 +31,7 @@ import numpy as np
 
 from ..datasets.trajectories import TrajectoryDataset
 from ..tasks import task_info
+from .label_records import comparison_record, label_record
 from .reader import BagError, iter_decoded
 from .schemas import TOPIC_TYPES, split_topic
 from .writer import BagWriter
@@ -234,7 +235,6 @@ def _comparisons(comparisons: list, index: dict, ds: TrajectoryDataset, report: 
     """(m, 3) rows (a, b, p) of the comparisons whose both episodes are in the dataset with the
     lengths the labeller saw (their records in ds.meta["comparisons"], provenance as
     meta["labels"] is for returns); the others counted in the report."""
-    from ..labelling.label_files import comparison_record
 
     out, records = [], []
     report.comparisons_seen = len(comparisons)
@@ -306,13 +306,6 @@ def _steps(by_step, length, oracle, report) -> tuple:
     hidden = (np.array([list(oracle[t].hidden) for t in range(length)], np.float64)
               if have_oracle else None)
     return states, rewards, hidden
-
-
-def label_record(task: str, source: str, episode: int, length: int, value: float, labeller: str,
-                 stamp_ns: int) -> dict:
-    """One label as provenance and export record it: who gave which return to which episode, when."""
-    return {"task": task, "source": source, "episode": int(episode), "length": int(length),
-            "return": None if value != value else float(value), "labeller": labeller, "stamp_ns": int(stamp_ns)}
 
 
 def _stack(task, rows, state_size, report) -> TrajectoryDataset:

@@ -15,9 +15,7 @@ import yaml
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-
-class BagError(ValueError):
-    """A bag cannot be read as asked (missing, malformed, truncated, inconsistent)."""
+from .errors import BagError
 
 
 REPAIR_HINT = "if the recording was killed, `nmrm bag repair {path}` recovers what reached the disk"
@@ -75,7 +73,7 @@ def _iter(path: str | Path, topics: list | None):
 
 def _damage(file: Path, path, exc: Exception, read: int) -> str:
     """One line: what is damaged in `file` and where, and what to do."""
-    from .repair import scan_chunks
+    from .chunks import scan_chunks
 
     what = f"{type(exc).__name__}: {str(exc).strip()[:160]}"
     try:

@@ -5,7 +5,7 @@ policy rarely shows the interesting behaviour. For a task of a user's, we know n
 oracle's return, so the classes are return bins, and the rule is the same in spirit:
 
 1. roll out a pool of `pool_size` episodes (uniform-random actions, or a Stable-Baselines3
-   policy of plain states, acting as it explores: `load_screening_policy`), episode e reset with
+   policy of plain states, acting as it explores: `rl.agent_episodes.load_screening_policy`), episode e reset with
    seed `seed + e`;
 2. label every episode with the oracle; cut the pool's return range [min, max] into `bins`
    equal-width bins (class id = bin index, 0 = lowest returns);
@@ -31,24 +31,6 @@ from ..tasks.gym_task import TaskSpecError
 from .trajectories import TrajectoryDataset
 
 Policy = Callable[[np.ndarray], np.ndarray]
-
-
-def load_screening_policy(path: str, task: str, seed: int = 0) -> Policy:
-    """`policy(state) -> action` of a saved Stable-Baselines3 policy (`nmrm rl train`'s
-    policy.zip) that observes the task's plain states, acting as it explores (SB3's
-    predict(deterministic=False)). ValueError (one line) if it cannot be loaded or observes
-    anything else (e.g. a reward model's augmented state)."""
-    from ..rl.evaluation import load_agent
-
-    model, meta = load_agent(path)
-    if meta.get("task") and meta["task"] != task:
-        raise ValueError(f"policy {path} was trained on task {meta['task']!r}, not {task!r}")
-    size, want = model.observation_space.shape, (task_info(task).state_size,)
-    if size != want:
-        raise ValueError(f"policy {path} observes {size[0]} values and {task} states have {want[0]}: "
-                         f"screening needs a policy of plain states (nmrm rl train --reward oracle-no-hidden)")
-    model.set_random_seed(seed)
-    return lambda obs: model.predict(np.asarray(obs, np.float32), deterministic=False)[0]
 
 
 def rollout_episodes(task: str, episodes: int, seed: int = 0, policy: Policy | None = None,

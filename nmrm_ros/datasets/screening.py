@@ -164,9 +164,10 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
     (pool k: episode seeds seed + k * pool_size ...), at most `max_pools` in all (ValueError,
     one line, if still short). A first pool that fills the dataset gives what it always gave.
 
-    `agent` (a policy.zip of an agent trained on the oracle): `agent_fraction` of each pool are its
-    episodes instead (`rollout_agent`, `early` as there; the paper's recycled oracle-agent
-    episodes), shuffled into the pool in a seeded order."""
+    `agent` (an agent trained on the oracle: `rl.agent_episodes.AgentEpisodes(policy.zip)`, or any
+    object with its `rollout(task, n, seed, early)`): `agent_fraction` of each pool are its episodes
+    instead (`early` as in `rollout_agent`; the paper's recycled oracle-agent episodes), shuffled into
+    the pool in a seeded order."""
     from ..tasks.lunar_lander import SCRIPTED_PLANS, rollout_lunar_lander
 
     if agent is not None and not 0.0 < agent_fraction <= 1.0:
@@ -180,10 +181,7 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
         first = seed + k * pool_size
         pool = rollout_lunar_lander(pool_size - n_agent, seed=first, policy=policy) if n_agent < pool_size else []
         if n_agent:
-            from .agent_episodes import rollout_agent
-
-            pool = pool + rollout_agent(agent, "lunar_lander", n_agent, seed=first + pool_size - n_agent,
-                                        early=early)
+            pool = pool + agent.rollout("lunar_lander", n_agent, seed=first + pool_size - n_agent, early=early)
             order = np.random.default_rng(first).permutation(len(pool))
             pool = [pool[i] for i in order]
         part = screen_pool("lunar_lander", pool, n_target, screener=screener)
@@ -208,20 +206,19 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
                       **kwargs) -> TrajectoryDataset:
     """The screened dataset of any task: navigation, the paper's classes over random-policy
     trajectories; lunar_lander, its classes over a scripted pool of `pool_size` episodes (default
-    2 * n_target; with kwargs policy, an oracle agent's policy.zip, a fifth of them its episodes); a task of the user's (a task spec) or any task with a user's `oracle`
-    ("<module>:<function>"), return bins over a pool of a random policy or of kwargs policy (a
-    policy.zip; `return_screening`; kwargs pool_size, bins, policy)."""
+    2 * n_target; with kwargs policy, an oracle agent's `rl.agent_episodes.AgentEpisodes`, a fifth of
+    them its episodes); a task of the user's (a task spec) or any task with a user's `oracle`
+    ("<module>:<function>"), return bins over a pool of a random policy or of kwargs policy
+    (`policy(state) -> action`, e.g. `rl.agent_episodes.load_screening_policy(policy.zip, ...)`;
+    `return_screening`; kwargs pool_size, bins, policy)."""
     info = task_info(task)
     if oracle or info.screening == "return_bins":
         from .return_screening import screen_by_return
 
-        from .return_screening import load_screening_policy
-
         policy = kwargs.get("policy") or None
         return screen_by_return(task, make_oracle(task, oracle), n_target, seed=seed,
                                 pool_size=kwargs.get("pool_size"), bins=kwargs.get("bins", 10),
-                                progress=kwargs.get("progress"),
-                                policy=load_screening_policy(policy, task, seed) if policy else None,
+                                progress=kwargs.get("progress"), policy=policy,
                                 policy_name=str(policy or "random"))
     kwargs.pop("bins", None)
     policy = kwargs.pop("policy", None)

@@ -1,6 +1,6 @@
 """Labels as plain records, to and from bags and files (no ROS).
 
-A label record is a dict (`nmrm_ros.bags.episodes.label_record`): task, source (the namespace of
+A label record is a dict (`nmrm_ros.bags.label_records.label_record`): task, source (the namespace of
 its topics, '' for /nmrm/...), episode, length, return, labeller, stamp_ns (when it was given).
 Files: JSON lines (`.jsonl`, one record per line) or CSV (`.csv`, a header row with those field
 names), written and read by `write_labels` / `read_labels`; `write_labels_bag` turns records into
@@ -23,7 +23,7 @@ SUFFIXES = (".jsonl", ".csv")
 def read_bag_labels(paths: list) -> list[dict]:
     """Every TrajectoryReturn in the bags at `paths`, as records, in the order they were written."""
     from ..bags import iter_decoded
-    from ..bags.episodes import label_record
+    from ..bags.label_records import label_record
     from ..bags.schemas import split_topic
 
     records = []
@@ -40,17 +40,10 @@ def read_bag_labels(paths: list) -> list[dict]:
 T_PREF = "nmrm_msgs/msg/TrajectoryPreference"
 
 
-def comparison_record(task: str, source: str, a: int, length_a: int, b: int, length_b: int, p: float,
-                      labeller: str, stamp_ns: int) -> dict:
-    """One comparison as a record: who said which of episodes a and b was better (p = P(a
-    better): 1, 0 or 0.5), when."""
-    return {"task": task, "source": source, "a": int(a), "length_a": int(length_a), "b": int(b),
-            "length_b": int(length_b), "p": float(p), "labeller": labeller, "stamp_ns": int(stamp_ns)}
-
-
 def read_bag_comparisons(paths: list) -> list[dict]:
     """Every TrajectoryPreference in the bags at `paths`, as comparison records, in order."""
     from ..bags import iter_decoded
+    from ..bags.label_records import comparison_record
     from ..bags.schemas import split_topic
 
     records = []

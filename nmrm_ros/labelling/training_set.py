@@ -62,8 +62,8 @@ class TrainingSet:
                 if self._here(a, la) and self._here(b, lb)]
 
     def comparison_records(self) -> list:
-        """The joined comparisons as provenance records (label_files.comparison_record)."""
-        from .label_files import comparison_record
+        """The joined comparisons as provenance records (bags.label_records.comparison_record)."""
+        from ..bags.label_records import comparison_record
 
         return [comparison_record(self.task, self.source, a, la, b, lb, p, lab, stamp)
                 for (lab, _, _), (a, la, b, lb, p, stamp) in sorted(self.comparisons.items())
@@ -90,7 +90,7 @@ class TrainingSet:
             states[i, :lengths[i]] = self.episodes[ep]
         final = np.stack([self.final[ep] for _, ep, _ in rows])
         returns = np.array([v for _, _, v in rows], np.float64)
-        from ..bags.episodes import label_record
+        from ..bags.label_records import label_record
 
         meta = {"source": "live labels", "episodes": [ep for _, ep, _ in rows],
                 "sources": [self.source] * n,

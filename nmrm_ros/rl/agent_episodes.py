@@ -1,4 +1,9 @@
-"""Episodes of a trained agent, for a dataset's pool (the paper's recycled oracle-agent episodes).
+"""Episodes of a trained agent, for a dataset's pool (the paper's recycled oracle-agent episodes),
+and a saved policy that rolls out the pool of a return-screened dataset.
+
+The dataset code (`nmrm_ros.datasets`) knows no agents: it takes what this module builds
+(`AgentEpisodes` for Lunar Lander's pool, `load_screening_policy` for return bins; `nmrm dataset
+... --policy` builds them).
 
 The paper's Lunar Lander dataset is screened from the episodes of its oracle-trained SAC agents
 (App. D.2): goal-directed trajectories, with the agents' own ways of landing and taking off. A pool
@@ -31,9 +36,9 @@ def rollout_agent(policy: str | Path, task: str, episodes: int, seed: int = 0, e
     float32, actions (L, A) float32, terminated bool), the states without anything appended, as
     `rollout_lunar_lander` returns them; `early`: see the module's docstring. ValueError (one line)
     for a policy that cannot be loaded, of another task, or of a reward model."""
-    from ..rl.evaluation import load_agent
-    from ..rl.wrappers import make_reward_env
     from ..tasks import task_info
+    from .evaluation import load_agent
+    from .wrappers import make_reward_env
 
     model, meta = load_agent(policy)
     if meta.get("task") and meta["task"] != task:
@@ -71,3 +76,49 @@ def rollout_agent(policy: str | Path, task: str, episodes: int, seed: int = 0, e
     finally:
         env.close()
     return out
+
+
+class AgentEpisodes:
+    """A saved agent's episodes for a screened pool (`datasets.screen_lunar_lander(agent=...)`):
+    `rollout(task, n, seed, early)` as `rollout_agent`; str() is its policy path (the dataset's meta)."""
+
+    def __init__(self, policy: str | Path) -> None:
+        self.policy = str(policy)
+
+    def __str__(self) -> str:
+        return self.policy
+
+    def rollout(self, task: str, episodes: int, seed: int = 0, early: int = 0) -> list:
+        return rollout_agent(self.policy, task, episodes, seed=seed, early=early)
+
+
+class SavedPolicy:
+    """`policy(state) -> action` of a saved SB3 policy, acting as it explores; str() is its path."""
+
+    def __init__(self, path: str, model) -> None:
+        self.path, self.model = path, model
+
+    def __str__(self) -> str:
+        return self.path
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.model.predict(np.asarray(obs, np.float32), deterministic=False)[0]
+
+
+def load_screening_policy(path: str, task: str, seed: int = 0) -> "SavedPolicy":
+    """`policy(state) -> action` of a saved Stable-Baselines3 policy (`nmrm rl train`'s
+    policy.zip) that observes the task's plain states, acting as it explores (SB3's
+    predict(deterministic=False)). ValueError (one line) if it cannot be loaded or observes
+    anything else (e.g. a reward model's augmented state)."""
+    from ..tasks import task_info
+    from .evaluation import load_agent
+
+    model, meta = load_agent(path)
+    if meta.get("task") and meta["task"] != task:
+        raise ValueError(f"policy {path} was trained on task {meta['task']!r}, not {task!r}")
+    size, want = model.observation_space.shape, (task_info(task).state_size,)
+    if size != want:
+        raise ValueError(f"policy {path} observes {size[0]} values and {task} states have {want[0]}: "
+                         f"screening needs a policy of plain states (nmrm rl train --reward oracle-no-hidden)")
+    model.set_random_seed(seed)
+    return SavedPolicy(str(path), model)
