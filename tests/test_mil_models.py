@@ -146,10 +146,14 @@ def test_format_1_metadata_loads_typed_and_is_written_back_as_format_2(tmp_path)
     assert copy["format"] == FORMAT and copy["mapped"] == {"a": 2.0} and copy["seed"] == 3
     assert Run.load(tmp_path / "copy").meta.data == DataInfo(DataSource("toy", "key", 100, 4), 100, {"seed": 4})
     for text, kind in (("bags:a,b", "bags"), ("runs/x.npz", "file"), ("live labels", "live"),
-                       ("screened:key:seed=3", ""), ("", "")):
+                       ("screened:gym:CartPole-v1:n=100:seed=0", "screened"), ("my.data", "file"), ("", "")):
         source = DataSource.parse(text)
-        assert source.kind == kind and (str(source) == text or not kind)
-    assert not DataSource.parse("screened:key:seed=3").regenerable
+        assert source.kind == kind and str(source) == text
+    assert DataSource.parse("screened:gym:CartPole-v1:n=100:seed=0").task == "gym:CartPole-v1"
+    assert not DataSource.parse("").regenerable and str(DataSource("file")) == ""
+    record["ensemble"]["future"] = 1  # entries a later version adds survive a copy
+    path.with_suffix(".json").write_text(json.dumps(record))
+    assert json.loads(Run.load(path).save(tmp_path / "again").with_suffix(".json").read_text())["ensemble"]["future"] == 1
     record["format"] = "nmrm_ros.mil_checkpoint/9"
     path.with_suffix(".json").write_text(json.dumps(record))
     with pytest.raises(CheckpointError, match="unknown checkpoint format"):

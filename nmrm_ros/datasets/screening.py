@@ -170,6 +170,8 @@ def screen_lunar_lander(pool_size: int = 2000, seed: int = 0, n_target: int | No
     the pool in a seeded order."""
     from ..tasks.lunar_lander import SCRIPTED_PLANS, rollout_lunar_lander
 
+    if agent is not None and not callable(getattr(agent, "rollout", None)):
+        raise TypeError(f"agent must be an rl.agent_episodes.AgentEpisodes (or have its rollout), not {agent!r}")
     if agent is not None and not 0.0 < agent_fraction <= 1.0:
         raise ValueError(f"agent_fraction must be in (0, 1], got {agent_fraction}")
     start = time.perf_counter()
@@ -216,6 +218,9 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
         from .return_screening import screen_by_return
 
         policy = kwargs.get("policy") or None
+        if policy is not None and not callable(policy):
+            raise TypeError(f"policy must be policy(state) -> action (rl.agent_episodes.load_screening_policy), "
+                            f"not {policy!r}")
         return screen_by_return(task, make_oracle(task, oracle), n_target, seed=seed,
                                 pool_size=kwargs.get("pool_size"), bins=kwargs.get("bins", 10),
                                 progress=kwargs.get("progress"), policy=policy,

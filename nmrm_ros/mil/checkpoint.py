@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,25 +84,23 @@ class DataSource:
         if self.kind == "bags":
             return "bags:" + ",".join(self.paths)
         if self.kind == "file":
-            return self.paths[0]
+            return self.paths[0] if self.paths else ""
         return "live labels" if self.kind == "live" else ""
 
     @classmethod
     def parse(cls, text: str) -> "DataSource":
-        """The inverse of str() (format 1's strings); anything else: a file path, or "" unknown."""
+        """The inverse of str() (format 1's strings; a task may hold ':', e.g. gym:CartPole-v1);
+        any other non-empty string is a dataset file's path (format 1 wrote `--data` so)."""
         text = text or ""
-        parts = text.split(":")
-        if len(parts) == 4 and parts[0] in ("toy", "screened") and parts[2].startswith("n=") \
-                and parts[3].startswith("seed="):
-            try:
-                return cls(parts[0], parts[1], int(parts[2][2:]), int(parts[3][5:]))
-            except ValueError:
-                return cls()
+        generated = re.fullmatch(r"(toy|screened):(.+):n=(\d+):seed=(\d+)", text)
+        if generated:
+            kind, task, n, seed = generated.groups()
+            return cls(kind, task, int(n), int(seed))
         if text.startswith("bags:"):
             return cls.bags(p for p in text[5:].split(",") if p)
         if text == "live labels":
             return cls("live")
-        return cls.file(text) if text.endswith(".npz") else cls()
+        return cls.file(text) if text else cls()
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "task": self.task, "n": self.n, "seed": self.seed, "paths": list(self.paths)}
@@ -118,11 +117,12 @@ class DataSource:
 @dataclass(frozen=True)
 class DataInfo:
     """The training data: its source, how many episodes, and the dataset's own metadata (labels,
-    comparisons, the generator's settings)."""
+    comparisons, the generator's settings); extra: entries this version does not know."""
 
     source: DataSource = DataSource()
     n: int | None = None
     meta: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -139,6 +139,7 @@ class EnsembleInfo:
     candidate_seeds: list | None = None
     chosen: int | None = None
     candidate_val_loss: list | None = None
+    extra: dict = field(default_factory=dict)  # entries this version does not know
 
 
 @dataclass(frozen=True)
@@ -146,7 +147,7 @@ class CheckpointMeta:
     """A checkpoint's metadata (its .json), typed. `extra` keeps entries this version does not
     know (written back unchanged when a copy is saved)."""
 
-    task: str
+    task: str | None
     model: ModelConfig
     ensemble: EnsembleInfo = EnsembleInfo()
     data: DataInfo = DataInfo()
@@ -172,11 +173,12 @@ class CheckpointMeta:
 
     def to_dict(self) -> dict:
         """The .json's record (format 2)."""
-        ens = {k: v for k, v in dataclasses.asdict(self.ensemble).items() if v is not None}
+        ens = {k: v for k, v in dataclasses.asdict(self.ensemble).items() if v is not None and k != "extra"}
         record = {"format": FORMAT, "package_version": self.package_version,
                   "weights_sha256": self.weights_sha256, "task": self.task, "model": self.model.to_dict(),
-                  "normalisation": self.normalisation, "ensemble": ens,
-                  "data": {"source": self.data.source.to_dict(), "n": self.data.n, "meta": self.data.meta},
+                  "normalisation": self.normalisation, "ensemble": {**ens, **self.ensemble.extra},
+                  "data": {"source": self.data.source.to_dict(), "n": self.data.n, "meta": self.data.meta,
+                           **self.data.extra},
                   "train_config": self.train_config, "metrics": self.metrics}
         for key in ("seed", "split_seed", "calibration"):
             if getattr(self, key) is not None:
@@ -187,20 +189,27 @@ class CheckpointMeta:
     def from_dict(cls, record: dict) -> "CheckpointMeta":
         """Any format in FORMATS, and the single-model records before "ensemble" (one member).
         KeyError/TypeError/ValueError if malformed."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        ens = record.get("ensemble") or {}
-        ens_fields = {f.name for f in dataclasses.fields(EnsembleInfo)}
-        data = record.get("data") or {}
+        known = {f.name for f in dataclasses.fields(cls)} - {"extra"}
+        ens = _mapping(record.get("ensemble"))
+        ens_fields = {f.name for f in dataclasses.fields(EnsembleInfo)} - {"extra"}
+        data = _mapping(record.get("data"))
         return cls(
-            task=record["task"], model=ModelConfig.from_dict(record["model"]),
-            ensemble=EnsembleInfo(**{k: v for k, v in ens.items() if k in ens_fields}),
-            data=DataInfo(DataSource.from_record(data.get("source")), data.get("n"), dict(data.get("meta") or {})),
-            train_config=dict(record.get("train_config") or {}), metrics=dict(record.get("metrics") or {}),
+            task=record.get("task"), model=ModelConfig.from_dict(record["model"]),
+            ensemble=EnsembleInfo(**{k: v for k, v in ens.items() if k in ens_fields},
+                                  extra={k: v for k, v in ens.items() if k not in ens_fields}),
+            data=DataInfo(DataSource.from_record(data.get("source")), data.get("n"), _mapping(data.get("meta")),
+                          {k: v for k, v in data.items() if k not in ("source", "n", "meta")}),
+            train_config=_mapping(record.get("train_config")), metrics=_mapping(record.get("metrics")),
             calibration=record.get("calibration"), normalisation=dict(record.get("normalisation") or {}),
             seed=record.get("seed"), split_seed=record.get("split_seed"),
             package_version=str(record.get("package_version", "")), weights_sha256=record.get("weights_sha256"),
             format=str(record.get("format")),
             extra={k: v for k, v in record.items() if k not in known})
+
+
+def _mapping(value) -> dict:
+    """A record's entry that should be an object: a copy of it, {} if it is anything else."""
+    return dict(value) if isinstance(value, dict) else {}
 
 
 def checkpoint_paths(path: str | Path) -> tuple[Path, Path]:
@@ -248,7 +257,7 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
         if record.get("format") not in FORMATS:
             raise CheckpointError(f"{info}: unknown checkpoint format {record.get('format')!r}")
         meta = CheckpointMeta.from_dict(record)
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
         if isinstance(exc, CheckpointError):
             raise
         raise CheckpointError(f"malformed checkpoint metadata {info}: {exc}") from None

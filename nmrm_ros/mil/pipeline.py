@@ -82,7 +82,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, trained_on.subset(splits[0][1]))
     run = Run.of(
         ens, ds.task, train=result, seed=cfg.seed, split_seed=split_seed, train_config=cfg.to_dict(),
-        data=DataInfo(data_source or DataSource(), len(ds), ds.meta),
+        data=DataInfo(DataSource.parse(data_source) if isinstance(data_source, str) else data_source or DataSource(),
+                      len(ds), ds.meta),
         ensemble=EnsembleInfo(members, serving, seeds, split_seeds, split_mode, **candidates),
         metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                  "best_epochs": result.best_epochs, "still_improving": result.still_improving,

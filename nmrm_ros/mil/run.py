@@ -22,8 +22,8 @@ from pathlib import Path
 import torch
 
 from .. import __version__
-from .checkpoint import (CheckpointMeta, DataInfo, DataSource, EnsembleInfo, checkpoint_paths, load_checkpoint,
-                         normalisation_of, sha256_of)
+from .checkpoint import (FORMAT, CheckpointMeta, DataInfo, DataSource, EnsembleInfo, checkpoint_paths,
+                         load_checkpoint, normalisation_of, sha256_of)
 from .ensemble import MILEnsemble, as_ensemble
 
 
@@ -82,7 +82,7 @@ class Run:
         weights.parent.mkdir(parents=True, exist_ok=True)
         torch.save(self.model.state_dict(), weights)
         self.meta = self.meta.replace(model=self.model.config, normalisation=normalisation_of(self.model),
-                                      package_version=__version__, weights_sha256=sha256_of(weights),
+                                      package_version=__version__, weights_sha256=sha256_of(weights), format=FORMAT,
                                       ensemble=dataclasses.replace(self.meta.ensemble, members=self.model.members,
                                                                    serving_member=int(self.model.serving_member)))
         tmp = info.with_suffix(".json.tmp")
