@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from reproduce_tables import PAPER_REWARD, PAPER_RETURN, load_dataset, mean_sem, parse_overrides
+from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD, mean_sem
+from nmrm_ros.datasets.cache import cached_dataset
+from nmrm_ros.mil.training import parse_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "any_dataset"
@@ -79,8 +81,8 @@ def run_repeat(job: tuple) -> dict:
     torch.set_num_threads(1)
     from nmrm_ros.mil import load_train_config
 
-    ds = load_dataset(task, 5000, r)
-    held = load_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
+    ds = cached_dataset(task, 5000, r)
+    held = cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, **overrides)
     ens, result, seconds, on_test, on_held = train_repeat("csc_lstm", ds, held, r, cfg)
     seeds = ens_seeds(r, cfg)
@@ -137,7 +139,7 @@ def main() -> None:
     args = parser.parse_args()
     out = RESULTS / args.tag
     if not args.report:
-        overrides = parse_overrides(args.set)
+        overrides = parse_settings(args.set)
         jobs = [(t, r, overrides, out) for t in args.tasks for r in range(args.repeats)
                 if not (out / f"{t}_r{r}.json").is_file() and (args.only is None or r in args.only)]
         print(f"# {len(jobs)} runs to train (finished ones skipped), overrides {overrides}", flush=True)

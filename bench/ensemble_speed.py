@@ -18,15 +18,12 @@ from __future__ import annotations
 
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from reproduce_tables import load_dataset  # noqa: E402
+from nmrm_ros.datasets.cache import cached_dataset
 
 from nmrm_ros.mil import load_train_config, model_config  # noqa: E402
 from nmrm_ros.mil.ensemble import init_ensemble  # noqa: E402
@@ -80,10 +77,10 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=3)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="training-config overrides")
     args = parser.parse_args()
-    from reproduce_tables import parse_overrides
+    from nmrm_ros.mil.training import parse_settings
 
-    overrides = parse_overrides(args.set)
-    ds = load_dataset(args.task, 5000, 0)
+    overrides = parse_settings(args.set)
+    ds = cached_dataset(args.task, 5000, 0)
     print(f"# ensemble cost: {args.arch} on {args.task} (5000 bags, 4000 train), overrides {overrides}; "
           f"seconds per epoch, median of {args.epochs} after a warm-up epoch", flush=True)
     best = {}

@@ -120,13 +120,13 @@ def run(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from reproduce_tables import load_dataset
+    from nmrm_ros.datasets.cache import cached_dataset
     from nmrm_ros.interpret.lander_probes import rollout_probe, LANDER_PROBES
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.data import split_indices
     from nmrm_ros.mil.pipeline import fit
 
-    ds = load_dataset("lunar_lander", 5000, 0)
+    ds = cached_dataset("lunar_lander", 5000, 0)
     overrides = BASE | VARIANTS[variant]
     cfg = load_train_config("lunar_lander", seed=seed, **overrides)
     t0 = time.perf_counter()
@@ -178,10 +178,10 @@ def return_analysis(n: int = 5000, seed: int = 0) -> str:
     """What explains Lunar Lander's returns (data seed `seed`, n episodes): R^2 of a linear fit of
     the return on one per-episode count at a time (Markovian counts, and the steps airborne once k
     steps on the pad have been counted, for several k), and each oracle component's share."""
-    from reproduce_tables import load_dataset
+    from nmrm_ros.datasets.cache import cached_dataset
     from nmrm_ros.oracles import make_oracle
 
-    ds = load_dataset("lunar_lander", n, seed)
+    ds = cached_dataset("lunar_lander", n, seed)
     s, returns = ds.states, ds.returns
     live = np.arange(s.shape[1])[None, :] < ds.lengths[:, None]
     contact = ((s[..., 6] == 1) | (s[..., 7] == 1)) & live

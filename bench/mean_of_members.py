@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from reproduce_tables import PAPER_RETURN, PAPER_REWARD, load_dataset
+from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD
+from nmrm_ros.datasets.cache import cached_dataset
 
 
 @torch.no_grad()
@@ -48,7 +49,7 @@ def main() -> None:
 
     ens, meta = load_checkpoint(args.checkpoint)
     task, arch = meta.task, ens.config.architecture
-    ds = load_dataset(task, args.n, args.data_seed)
+    ds = cached_dataset(task, args.n, args.data_seed)
     real = np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None]
     preds = member_predictions(ens, ds) * real  # (K, n, T)
     truth = ds.rewards * real

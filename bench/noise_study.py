@@ -21,15 +21,13 @@ from __future__ import annotations
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import json
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from reproduce_tables import load_dataset  # noqa: E402
+from nmrm_ros.datasets.cache import cached_dataset
 
 ARCHS = ("csc_lstm", "instance_lstm", "instance_nn")
 NAMES = {"csc_lstm": "CSC Instance Space LSTM", "instance_lstm": "Instance Space LSTM",
@@ -46,7 +44,7 @@ def run(task: str, arch: str, levels: list, repeats: int, max_epochs: int | None
     from nmrm_ros.mil.training import train_ensemble
 
     torch.set_num_threads(threads)
-    ds = load_dataset(task, 5000, 0)
+    ds = cached_dataset(task, 5000, 0)
     cfg = load_train_config(task, threads=threads, max_epochs=max_epochs)
     members = [(p, r) for p in levels for r in range(repeats)]
     splits = [split_indices(len(ds), r) for _, r in members]

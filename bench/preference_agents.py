@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from preferences import FINAL_WINDOW, HELD_OUT_N, HELD_OUT_SEED, MODELS, RESULTS, RL_N, run_name
-from reproduce_tables import load_dataset
+from nmrm_ros.datasets.cache import cached_dataset
 
 EPISODES = 50
 
@@ -117,8 +117,8 @@ def main() -> None:
     for path in [*ckpt.values(), *(a / "policy.zip" for a in agents.values())]:
         if not path.is_file():
             sys.exit(f"missing {path}: run bench/preferences.py --rl --tasks {task} --seeds {r} first")
-    held = load_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
-    train = load_dataset(task, 5000, r)
+    held = cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
+    train = cached_dataset(task, 5000, r)
     models = {k: load_checkpoint(p)[0] for k, p in ckpt.items()}
     fits = {k: affine_fit(m, held) for k, m in models.items()}
     lines = [f"# {task}, seed {r}: CSC models of {RL_N} return labels and of {RL_N} perfect comparisons "

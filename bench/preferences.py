@@ -41,7 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from any_dataset import ens_seeds, mean_seconds, train_repeat
-from reproduce_tables import load_dataset, parse_overrides
+from nmrm_ros.datasets.cache import cached_dataset
+from nmrm_ros.mil.training import parse_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "preferences"
@@ -65,7 +66,7 @@ def training_data(task: str, teacher: str, n: int, r: int):
     return-labelled episodes."""
     from nmrm_ros.datasets.preference_teacher import SimulatedTeacher, with_preferences
 
-    ds = load_dataset(task, 5000, r)
+    ds = cached_dataset(task, 5000, r)
     if TEACHERS[teacher] is None:
         pick = np.sort(np.random.default_rng([r, 0x51]).permutation(len(ds))[:n])
         return ds.subset(pick), "returns"
@@ -84,7 +85,7 @@ def run(job: tuple) -> dict:
     from nmrm_ros.mil import load_train_config
 
     ds, feedback = training_data(task, teacher, n, r)
-    held = load_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
+    held = cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, feedback=feedback, **overrides)
     seeds = ens_seeds(r, cfg)
     ens, result, seconds, on_test, on_held = train_repeat(arch, ds, held, r, cfg)  # scored as the mean of its members
@@ -150,7 +151,7 @@ def calibrated_model(src: Path, dst: Path, task: str, r: int) -> None:
     from nmrm_ros.mil.calibration import calibrate, fit_calibration
 
     run = Run.load(src, task=task)
-    ds = load_dataset(task, 5000, r)
+    ds = cached_dataset(task, 5000, r)
     pick = np.sort(np.random.default_rng([r, 0xCA1]).choice(len(ds), CAL_LABELS, replace=False))
     fit = fit_calibration(run.model, ds.subset(pick))
     run.replace(model=calibrate(run.model, fit), calibration={
@@ -288,7 +289,7 @@ def main() -> None:
     args = parser.parse_args()
     out = RESULTS / args.tag
     if args.rl:
-        overrides = parse_overrides(args.set)
+        overrides = parse_settings(args.set)
         jobs = [(t, k, r, overrides, out, args.episodes) for r in args.seeds for t in args.tasks
                 for k in RL_TEACHERS]
         print(f"# {len(jobs)} agents (finished ones reused)" if not args.report else "# the agents kept so far",
@@ -306,7 +307,7 @@ def main() -> None:
                                     f"row: the seeds it has so far; `--rl --report` redraws)\n")
         return
     if not args.report:
-        overrides = parse_overrides(args.set)
+        overrides = parse_settings(args.set)
         # the cheapest first: a sitting cut short leaves the small cells complete
         jobs = sorted(((t, a, k, n, r, overrides, out) for t in args.tasks for a in args.archs
                        for k in args.teachers for n in args.pairs for r in args.seeds

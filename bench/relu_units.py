@@ -18,7 +18,8 @@ import time
 import numpy as np
 import torch
 
-from reproduce_tables import load_dataset, parse_overrides
+from nmrm_ros.datasets.cache import cached_dataset
+from nmrm_ros.mil.training import parse_settings
 
 from nmrm_ros.mil import load_train_config, model_config
 from nmrm_ros.mil.ensemble import init_ensemble
@@ -40,8 +41,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="training-config overrides")
     args = parser.parse_args()
-    ds = load_dataset(args.task, 5000, 0)
-    cfg = load_train_config(args.task, seed=0, threads=1, **parse_overrides(args.set))
+    ds = cached_dataset(args.task, 5000, 0)
+    cfg = load_train_config(args.task, seed=0, threads=1, **parse_settings(args.set))
     repeats = list(range(args.repeats))
     real = np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None]
     states = torch.as_tensor(ds.states[real], dtype=torch.float32)  # every real instance, (N, d)
@@ -49,7 +50,7 @@ def main() -> None:
     run = fit(ds, args.arch, cfg, members=len(repeats), split_mode="per_member",
                              progress=False, offsets=repeats)
     print(f"# {args.task} {args.arch}, 5000 bags (data seed 0), repeats {repeats}, relu_bias {cfg.relu_bias}, "
-          f"settings {parse_overrides(args.set)}; {time.perf_counter() - start:.0f} s")
+          f"settings {parse_settings(args.set)}; {time.perf_counter() - start:.0f} s")
     config = model_config(args.arch, ds.task, ds.state_size, dropout=cfg.dropout, hidden_size=cfg.hidden_size)
     for m, r in enumerate(repeats):
         fresh = init_ensemble(config, [r])  # repeat r's initial weights, as training started

@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
-from run_cache import stale_data, stale_rl_settings, stale_settings
+from nmrm_ros.datasets.cache import stale_data
+from nmrm_ros.resume import stale_rl_settings, stale_settings
 
 TASKS = ("timer", "moving", "key", "charger")
 ALL_TASKS = TASKS + ("lunar_lander",)
@@ -66,7 +67,7 @@ def train_reward_model(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from reproduce_tables import load_dataset
+    from nmrm_ros.datasets.cache import cached_dataset
     from nmrm_ros.mil import DataSource, load_train_config
     from nmrm_ros.mil.pipeline import fit
 
@@ -80,7 +81,7 @@ def train_reward_model(job: tuple) -> dict:
             return {"task": task, "arch": arch, "seed": seed, **meta["metrics"]["test"], "cached": True}
         print(f"  {task} {arch} seed {seed}: trained with other settings or data than today's "
               f"({', '.join(stale)}): training again", flush=True)
-    ds = load_dataset(task, 5000, seed)
+    ds = cached_dataset(task, 5000, seed)
     run = fit(ds, arch, cfg, cfg.members, split_seed=seed, out=out, progress=False,
                              data_source=DataSource.generated(task, 5000, seed),
                              offsets=[1000 * j for j in range(cfg.members)])

@@ -34,83 +34,16 @@ from pathlib import Path
 
 import numpy as np
 
+from nmrm_ros.datasets.cache import cached_dataset
+from nmrm_ros.mil.training import parse_settings
+from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD, mean_sem
+
 ARCHS = ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
 TOY = ("toggle_switch", "push_switch", "dial")
 NAV = ("timer", "moving", "key", "charger")
 LL = ("lunar_lander",)
 TABLES = {"toy": TOY, "nav": NAV, "ll": LL}
 LL_REWARD_UNIT = 1e-5  # the paper's Lunar Lander reward MSEs are given in units of 1e-5
-
-# Paper values (mean, SEM): App. C Table "toy results" and Sec. 4 Table 1 (Lunar Lander: its top 5 of
-# 10 by reward MSE, scaled units; reward MSE in units of 1e-5).
-PAPER_RETURN = {
-    "instance_nn": {"toggle_switch": (0.030, 0.029), "push_switch": (3.337, 0.054), "dial": (5.489, 0.157),
-                    "timer": (130.8, 1.530), "moving": (22.24, 0.441), "key": (7.764, 0.232), "charger": (7.783, 0.214),
-                    "lunar_lander": (2.297, 0.058)},
-    "embedding_lstm": {"toggle_switch": (0.008, 0.002), "push_switch": (0.663, 0.194), "dial": (0.434, 0.075),
-                       "timer": (3.151, 0.662), "moving": (13.04, 0.899), "key": (0.360, 0.055), "charger": (0.689, 0.124),
-                       "lunar_lander": (0.416, 0.048)},
-    "instance_lstm": {"toggle_switch": (0.062, 0.058), "push_switch": (0.262, 0.154), "dial": (0.111, 0.014),
-                      "timer": (7.313, 2.627), "moving": (11.13, 1.169), "key": (0.488, 0.062), "charger": (0.628, 0.126),
-                      "lunar_lander": (1.223, 0.431)},
-    "csc_lstm": {"toggle_switch": (0.000, 0.000), "push_switch": (0.140, 0.065), "dial": (0.121, 0.043),
-                 "timer": (0.605, 0.166), "moving": (5.307, 0.299), "key": (0.391, 0.083), "charger": (0.125, 0.012),
-                 "lunar_lander": (0.501, 0.035)},
-}
-PAPER_REWARD = {
-    "instance_nn": {"toggle_switch": (0.002, 0.002), "push_switch": (0.086, 0.001), "dial": (0.954, 0.011),
-                    "timer": (0.217, 0.001), "moving": (0.068, 0.000), "key": (0.011, 0.000), "charger": (0.025, 0.000),
-                    "lunar_lander": (7.484, 0.861)},
-    "embedding_lstm": {"toggle_switch": (0.003, 0.001), "push_switch": (0.206, 0.100), "dial": (0.244, 0.077),
-                       "timer": (101.8, 60.35), "moving": (3.033, 0.715), "key": (0.010, 0.008), "charger": (0.037, 0.016),
-                       "lunar_lander": (120.2, 24.27)},
-    "instance_lstm": {"toggle_switch": (0.004, 0.004), "push_switch": (0.021, 0.008), "dial": (0.026, 0.004),
-                      "timer": (0.263, 0.038), "moving": (0.069, 0.005), "key": (0.002, 0.000), "charger": (0.005, 0.001),
-                      "lunar_lander": (9.336, 3.116)},
-    "csc_lstm": {"toggle_switch": (0.000, 0.000), "push_switch": (0.012, 0.004), "dial": (0.022, 0.007),
-                 "timer": (0.073, 0.016), "moving": (0.026, 0.002), "key": (0.001, 0.000), "charger": (0.001, 0.000),
-                 "lunar_lander": (7.365, 1.032)},
-}
-
-
-CACHE = Path(__file__).resolve().parents[1] / "runs" / "data"
-
-
-def load_dataset(task: str, n: int, seed: int):
-    """The task's dataset (screened, or toy), cached in runs/data/."""
-    from nmrm_ros.datasets import TrajectoryDataset, generate_screened, make_toy_dataset
-
-    from run_cache import stale_data
-
-    path = CACHE / f"{task}_n{n}_s{seed}.npz"
-    if path.is_file():
-        cached = TrajectoryDataset.load(path)
-        stale = stale_data(cached.meta, task)
-        if not stale:
-            return cached
-        print(f"# {path.name}: made by another generator ({', '.join(stale)}): generating again", flush=True)
-    ds = make_toy_dataset(task, n, seed=seed) if task in TOY else generate_screened(task, n, seed=seed)
-    CACHE.mkdir(parents=True, exist_ok=True)
-    ds.save(path)
-    return ds
-
-
-def parse_overrides(pairs: list) -> dict:
-    """["lr=1e-3", "schedule=cosine"] -> {"lr": 0.001, "schedule": "cosine"} (numbers as floats)."""
-    import yaml
-
-    out = {}
-    for pair in pairs or []:
-        key, _, value = pair.partition("=")
-        parsed = yaml.safe_load(value)
-        if isinstance(parsed, str):  # YAML 1.1 reads "3e-3" (no dot) as a string
-            try:
-                parsed = float(parsed)
-            except ValueError:
-                pass
-        out[key] = parsed
-    return out
-
 
 def epoch_logger(label: str, every: int):
     """on_epoch callback printing the members' validation return MSE every `every` epochs."""
@@ -130,7 +63,7 @@ def run_ensemble(job: tuple) -> list:
     from nmrm_ros.mil import load_train_config
     from nmrm_ros.mil.pipeline import fit
 
-    ds = load_dataset(task, n, data_seed)
+    ds = cached_dataset(task, n, data_seed)
     cfg = load_train_config(task, seed=0, threads=threads, **overrides)
     members = cfg.members if members is None else members
     if members > 1:
@@ -253,11 +186,6 @@ def best_half(results: list) -> list:
         rs = sorted((r for r in results if (r["task"], r["arch"]) == key), key=lambda r: r["reward_mse"])
         keep.extend(rs[: max(1, len(rs) // 2)])
     return keep
-
-
-def mean_sem(values: list) -> tuple:
-    v = np.asarray(values, dtype=np.float64)
-    return float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else 0.0
 
 
 def fmt(ms: tuple) -> str:
@@ -400,7 +328,7 @@ def main() -> None:
     tasks = tuple(t for table in args.tables for t in TABLES[table])
     if args.tasks:
         tasks = tuple(t for t in tasks if t in args.tasks)
-    overrides = parse_overrides(args.set)
+    overrides = parse_settings(args.set)
     if args.max_epochs is not None:
         overrides["max_epochs"] = args.max_epochs
     repeats = list(args.seeds) if args.seeds else list(range(args.repeats))

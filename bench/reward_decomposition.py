@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from reproduce_tables import load_dataset
+from nmrm_ros.datasets.cache import cached_dataset
 
 
 @torch.no_grad()
@@ -80,7 +80,7 @@ def members(path: Path):
     source = meta.data.source
     n = int(meta.data.n)
     data_seed = int(meta.data.meta.get("seed", 0))
-    ds = load_dataset(meta.task, n, data_seed)
+    ds = cached_dataset(meta.task, n, data_seed)
     if source.kind not in ("screened", ""):
         print(f"# note: {path}: data source {str(source)!r}; using the screened dataset n={n}, seed {data_seed}")
     split_seeds = meta.ensemble.split_seeds or [int(meta.split_seed or 0)] * model.members

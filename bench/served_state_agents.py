@@ -126,9 +126,9 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="training-config overrides of the models (use a --work of their own)")
     args = parser.parse_args()
-    from reproduce_tables import parse_overrides
+    from nmrm_ros.mil.training import parse_settings
 
-    overrides = parse_overrides(args.set)
+    overrides = parse_settings(args.set)
     start = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
         models = dict(zip(args.tasks, pool.map(train_model, [(args.work, t, args.data_seed, overrides) for t in args.tasks])))

@@ -36,7 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from reproduce_tables import CACHE, PAPER_RETURN, PAPER_REWARD, load_dataset, parse_overrides
+from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD
+from nmrm_ros.datasets.cache import cached_dataset
+from nmrm_ros.mil.training import parse_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "time_to_accuracy"
@@ -61,8 +63,8 @@ def dataset_file(task: str, seed: int, held_out: bool = False) -> Path:
 
     if task in NAV:  # the benches' shared cache (runs/data/), regenerated when its generator changed
         n = 2000 if held_out else 5000
-        load_dataset(task, n, seed)
-        return CACHE / f"{task}_n{n}_s{seed}.npz"
+        cached_dataset(task, n, seed, root=ROOT / "runs" / "data")
+        return ROOT / "runs" / "data" / f"{task}_n{n}_s{seed}.npz"
     spec, oracle, n_train, n_held = OWN[task]
     n = n_held if held_out else n_train
     path = RUNS / "data" / f"{task}_n{n}_s{seed}.npz"
@@ -173,7 +175,7 @@ def main() -> None:
         if a.tag == "head":
             raise SystemExit("--set: give the run its own --tag (head is the defaults)")
         base = config or ROOT / "config" / "mil_training.yaml"
-        config = config_with(base, parse_overrides(a.set), a.tag)
+        config = config_with(base, parse_settings(a.set), a.tag)
     for task in a.tasks:
         for seed in a.seeds:
             path = RESULTS / a.tag / f"{task}_s{seed}.json"

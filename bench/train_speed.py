@@ -16,15 +16,13 @@ from __future__ import annotations
 
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from reproduce_tables import PAPER_RETURN, load_dataset  # noqa: E402
+from nmrm_ros.paper import PAPER_RETURN
+from nmrm_ros.datasets.cache import cached_dataset
 
 from nmrm_ros.mil import load_train_config, model_config  # noqa: E402
 from nmrm_ros.mil.data import split_indices  # noqa: E402
@@ -61,7 +59,7 @@ def main() -> None:
     print(f"# time to accuracy: csc_lstm, data seed 0, split 0, seed 0, {args.threads} torch thread(s); "
           f"target = paper's test return MSE; cap {args.cap_minutes:g} min per run", flush=True)
     for task in args.tasks:
-        ds = load_dataset(task, 5000, 0)
+        ds = cached_dataset(task, 5000, 0)
         target = PAPER_RETURN["csc_lstm"][task][0]
         ours = load_train_config(task, threads=args.threads)
         paper = load_train_config(task, threads=args.threads, batch_size=1, lr=5e-4, schedule="constant",

@@ -23,7 +23,7 @@ given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm 
 
 Resumes: every run is a JSON file in bench/results/your_own_task/ and is skipped when present,
 unless a model's recorded training settings are not today's defaults or an agent's reward model
-is not the one it learnt on (bench/run_cache.py): then it runs again.
+is not the one it learnt on (`nmrm_ros.resume`): then it runs again.
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from any_dataset import ens_seeds, mean_seconds, train_repeat
-from reproduce_tables import mean_sem
+from nmrm_ros.paper import mean_sem
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
-from run_cache import stale_rl_settings, stale_settings
+from nmrm_ros.resume import stale_rl_settings, stale_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "your_own_task"

@@ -653,3 +653,21 @@ def _progress(total: int, enabled: bool):
 
     # disable=None: no bar when stderr is not a terminal (a log would get one \r-joined line)
     return tqdm(total=total, desc="epochs", unit="ep", leave=False, disable=None)
+
+
+def parse_settings(pairs: list) -> dict:
+    """["lr=1e-3", "schedule=cosine"] -> {"lr": 0.001, "schedule": "cosine"}: training settings given
+    as name=value (YAML values; numbers as floats), for `load_train_config(task, **settings)`."""
+    import yaml
+
+    out = {}
+    for pair in pairs or []:
+        key, _, value = pair.partition("=")
+        parsed = yaml.safe_load(value)
+        if isinstance(parsed, str):  # YAML 1.1 reads "3e-3" (no dot) as a string
+            try:
+                parsed = float(parsed)
+            except ValueError:
+                pass
+        out[key] = parsed
+    return out

@@ -1,8 +1,9 @@
-"""When a benchmark's finished run still stands for today's code and defaults.
+"""When a finished run still stands for today's code and defaults (what a resuming benchmark checks).
 
-Benchmarks resume: a run whose result file exists is skipped. That is only right while the run
-was made with today's training (or RL) settings and on data of today's generator (both checked here)
-and, for an agent, while its reward model is the one it learnt on (its recorded `checkpoint_sha256` against the checkpoint's
+A long run whose result file exists is skipped when it is resumed. That is only right while the run
+was made with today's training (or RL) settings (`stale_settings`, `stale_rl_settings`), on data of
+today's generator (`nmrm_ros.datasets.cache.stale_data`) and, for an agent, while its reward model is
+the one it learnt on (its recorded `checkpoint_sha256` against
 `nmrm_ros.mil.checkpoint.recorded_weights_sha256`); otherwise the run is made again.
 """
 
@@ -30,7 +31,7 @@ def stale_settings(recorded: dict | None, cfg) -> list[str]:
         then = {f.name: f.default for f in fields(cfg) if f.default is not MISSING} | then
     else:
         then = {k: v for k, v in RL_SETTINGS_BEFORE.items() if k in today} | then
-    from nmrm_ros.mil.training import EXECUTION_SETTINGS  # how fast, not what: never stale
+    from .mil.training import EXECUTION_SETTINGS  # how fast, not what: never stale
 
     return [f"{k} {v!r} -> {today[k]!r}" for k, v in then.items()
             if k in today and today[k] != v and k not in EXECUTION_SETTINGS]
@@ -39,19 +40,6 @@ def stale_settings(recorded: dict | None, cfg) -> list[str]:
 def stale_rl_settings(recorded: dict | None, task: str, **overrides) -> list[str]:
     """`stale_settings` of a finished agent's recorded RL config against today's for `task`
     (config/rl.yaml with `overrides`)."""
-    from nmrm_ros.rl import algorithm_name, load_rl_config
+    from .rl import algorithm_name, load_rl_config
 
     return stale_settings(recorded, load_rl_config(algorithm_name(task), task=task, **overrides))
-
-
-def stale_data(recorded_meta: dict | None, task: str) -> list[str]:
-    """How a cached dataset (its meta) or a model's recorded training data (checkpoint
-    ["data"]["meta"]) differs from what today's generator makes for `task`: Lunar Lander's scripted
-    plans are versioned (`nmrm_ros.tasks.lunar_lander.SCRIPTED_PLANS`; data without a version are
-    version 1). Empty when current, or when the data were not generated (a bag, a file of the user's)."""
-    if task != "lunar_lander" or not recorded_meta or recorded_meta.get("policy") != "scripted":
-        return []
-    from nmrm_ros.tasks.lunar_lander import SCRIPTED_PLANS
-
-    then = recorded_meta.get("plans", 1)
-    return [] if then == SCRIPTED_PLANS else [f"scripted plans {then} -> {SCRIPTED_PLANS}"]
