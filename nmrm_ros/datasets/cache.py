@@ -35,7 +35,7 @@ def stale_data(recorded_meta: dict | None, task: str) -> list[str]:
     `meta.data.meta`) differs from what today's generator makes for `task`: Lunar Lander's scripted
     plans are versioned (`nmrm_ros.tasks.lunar_lander.SCRIPTED_PLANS`; data without a version are
     version 1). Empty when current, or when the data were not generated (a bag, a file of the user's)."""
-    if task != "lunar_lander" or not recorded_meta or recorded_meta.get("policy") != "scripted":
+    if not recorded_meta or recorded_meta.get("policy") != "scripted":  # only Lunar Lander's pools are scripted
         return []
     from ..tasks.lunar_lander import SCRIPTED_PLANS
 
