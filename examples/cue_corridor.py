@@ -3,7 +3,7 @@
 Written after the agents' and models' settings were frozen (issue 50's held-out tasks), as a user
 would write it: an env class and an oracle function in one file of their own.
 
-    PYTHONPATH=examples nmrm dataset generate --task cue_corridor:CueCorridor \\
+    PYTHONPATH=examples nmrm dataset generate --task cue_corridor:CueCorridor,max_steps=30 \\
         --oracle examples/cue_corridor.py:oracle --n 2000 --out runs/cue.npz
 
 The env: cells 0..LENGTH of a corridor and, at its far end, two arms (up, down). State (3,)
