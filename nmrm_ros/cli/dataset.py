@@ -44,6 +44,17 @@ def _screened(task: str, n: int, seed: int, oracle: str, key_fourth_class: bool,
     return generate_screened(task, n, seed=seed, oracle=oracle, **kwargs)
 
 
+#: the screening options `dataset screen` and `dataset generate` share
+KEY_FOURTH_CLASS_OPT = typer.Option(False, help="Key: also screen treasure_no_key")
+POOL_SIZE_OPT = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: default 2n; "
+                                               "your own task or oracle: 4n)")
+BINS_OPT = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced")
+POLICY_OPT = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose episodes are "
+                                     "screened (default: uniform random); lunar_lander: an oracle agent's "
+                                     "policy.zip whose episodes make a fifth of the pool (the paper's recycled "
+                                     "episodes)")
+
+
 @dataset_app.command("screen")
 def dataset_screen(
     task: str = typer.Option(..., help=TASK_HELP),
@@ -51,14 +62,8 @@ def dataset_screen(
     seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
     out: Path = typer.Option(None, help="write the dataset here (.npz)", callback=writable_file),
     oracle: str = typer.Option("", help=ORACLE_HELP),
-    key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
-    pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
-                                                    "default 2n; your own task or oracle: 4n)"),
-    bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
-    policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
-                                           "episodes are screened (default: uniform random); lunar_lander: "
-                                           "an oracle agent's policy.zip whose episodes make a fifth of "
-                                           "the pool (the paper's recycled episodes)"),
+    key_fourth_class: bool = KEY_FOURTH_CLASS_OPT, pool_size: int = POOL_SIZE_OPT, bins: int = BINS_OPT,
+    policy: Path = POLICY_OPT,
     feedback: str = FEEDBACK_OPT, pairs: int = PAIRS_OPT, beta: float = BETA_OPT,
     mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
     skip: float = SKIP_OPT,
@@ -81,14 +86,8 @@ def dataset_generate(
     out: Path = typer.Option(..., help="bag directory to create", callback=writable_dir),
     seed: int = typer.Option(0, min=0, help="seed of the simulator and the policy"),
     oracle: str = typer.Option("", help=ORACLE_HELP),
-    key_fourth_class: bool = typer.Option(False, help="Key: also screen treasure_no_key"),
-    pool_size: int = typer.Option(None, min=1, help="episodes rolled out to screen from (lunar_lander: "
-                                                    "default 2n; your own task or oracle: 4n)"),
-    bins: int = typer.Option(10, min=1, max=1000, help="your own task or oracle: return bins balanced"),
-    policy: Path = typer.Option(None, help="your own task or oracle: a policy.zip of plain states whose "
-                                           "episodes are screened (default: uniform random); lunar_lander: "
-                                           "an oracle agent's policy.zip whose episodes make a fifth of "
-                                           "the pool (the paper's recycled episodes)"),
+    key_fourth_class: bool = KEY_FOURTH_CLASS_OPT, pool_size: int = POOL_SIZE_OPT, bins: int = BINS_OPT,
+    policy: Path = POLICY_OPT,
     feedback: str = FEEDBACK_OPT, pairs: int = PAIRS_OPT, beta: float = BETA_OPT,
     mistake: float = MISTAKE_OPT, equal: float = EQUAL_OPT, gamma: float = GAMMA_OPT,
     skip: float = SKIP_OPT,
