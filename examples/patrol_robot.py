@@ -15,12 +15,10 @@ visited, east visited]. Random-policy episodes: see WEST, EAST, HOME below.
 
 from __future__ import annotations
 
-import math
-
 import gymnasium as gym
 import numpy as np
 
-from nmrm_ros.robots.delivery import SIZE, step_unicycle
+from nmrm_ros.robots.delivery import DeliveryEnv, step_unicycle
 
 #: index -> (v m/s, w rad/s): ahead fast, ahead slow, turn left / right on the spot, arc left / right
 ACTIONS = {0: (0.6, 0.0), 1: (0.25, 0.0), 2: (0.0, 3.0), 3: (0.0, -3.0), 4: (0.3, 2.0), 5: (0.3, -2.0)}
@@ -30,7 +28,6 @@ HOME = (1.0, 1.0, 0.45)
 #: random-policy episodes of 200 steps (500, seeds 0-499): 6% visit both stations, 4.2% are paid
 #: (mean return 0.64, the best 42); with smaller zones (stations 0.65 m out, home 0.3 m) 0.4% were
 #: paid, too few for a dataset
-START = (1.0, 1.0)               # episodes start at home, heading drawn at random
 
 
 def _inside(x, y, zone) -> np.ndarray:
@@ -49,21 +46,16 @@ def oracle(states: np.ndarray, actions=None):
     return rewards, np.stack([west, east], axis=1).astype(np.float64)
 
 
-class PatrolEnv(gym.Env):
-    """The patrol task as a Gymnasium env (no reward of its own: the oracle judges)."""
+class PatrolEnv(DeliveryEnv):
+    """The fake robot's env (`DeliveryEnv`: the box, the start at home, a random heading) driven by
+    the patrol's action table; no reward of its own: the oracle judges."""
 
     def __init__(self) -> None:
-        self.observation_space = gym.spaces.Box(np.array([0.0, 0.0, -math.pi], np.float32),
-                                                np.array([SIZE, SIZE, math.pi], np.float32))
+        super().__init__()
         self.action_space = gym.spaces.Discrete(len(ACTIONS))
-        self.pose = (*START, 0.0)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.pose = (*START, float(self.np_random.uniform(-math.pi, math.pi)))
-        return np.array(self.pose, np.float32), {}
 
     def step(self, action):
         v, w = ACTIONS[int(action)]
         self.pose = step_unicycle(*self.pose, v, w)
+        self.t += 1
         return np.array(self.pose, np.float32), 0.0, False, False, {}  # the task spec's max_steps ends it
