@@ -1,5 +1,5 @@
 """Matplotlib figures of the interpretability views; each function writes one PNG and returns
-its path. The arena drawing (zones of a navigation task) is shared by all of them."""
+its path. The map drawing (`draw_zones`: the zones of the task's TaskInfo) is shared by all of them."""
 
 from __future__ import annotations
 
@@ -12,58 +12,32 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from ..oracles.lunar_lander import HOVER_ZONE, PAD_HALF_WIDTH  # noqa: E402
-from ..tasks.navigation import CHARGE_Y_MAX, KEY_ZONE, SPAWN_ZONES, TREASURE_ZONE  # noqa: E402
 from .embeddings import ORACLE_VARIABLE, Embedding  # noqa: E402
 from ..tasks import task_info  # noqa: E402
 from .reward_maps import extent  # noqa: E402
 
 
 
-def draw_arena(ax, task: str) -> None:
-    """The unit square with the task's zones: spawn (grey), treasure (gold; Moving: its row),
-    key (blue), charger (green)."""
-    def zone(z, colour, label, **kw):
-        ax.add_patch(Rectangle((z.x_min, z.y_min), z.x_max - z.x_min, z.y_max - z.y_min,
-                               fill=False, edgecolor=colour, lw=1.5, label=label, **kw))
-    for i, z in enumerate(SPAWN_ZONES):
-        zone(z, "grey", "spawn" if i == 0 else None)
-    if task == "moving":
-        ax.add_patch(Rectangle((0, TREASURE_ZONE.y_min), 1, TREASURE_ZONE.y_max - TREASURE_ZONE.y_min,
-                               fill=False, edgecolor="goldenrod", lw=1.5, ls="--", label="treasure row"))
-    else:
-        zone(TREASURE_ZONE, "goldenrod", "treasure")
-    if task == "key":
-        zone(KEY_ZONE, "royalblue", "key")
-    if task == "charger":
-        ax.add_patch(Rectangle((0, 0), 1, CHARGE_Y_MAX, fill=False, edgecolor="green", lw=1.5,
-                               label="charger"))
-    ax.set_xlim(0, 1)
-    ax.set_ylim(0, 1)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-
-
-def draw_lander_zones(ax) -> None:
-    """Lunar Lander's screen: the pad (-0.2 <= x <= 0.2 on the ground, gold) and the hover zone
-    (|x| <= 0.5, 0.75 <= y <= 1.25, green) of the oracle (paper App. D.1)."""
-    x0, x1, y0, y1 = HOVER_ZONE
-    ax.plot([-PAD_HALF_WIDTH, PAD_HALF_WIDTH], [0, 0], color="goldenrod", lw=4, label="pad", solid_capstyle="butt")
-    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="green", lw=1.5, label="hover zone"))
-    ax.set_xlim(-1, 1)
-    ax.set_ylim(-0.05, 1.5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-
-
 def draw_zones(ax, task: str) -> None:
-    """The task's arena (navigation) or screen (Lunar Lander) with its zones."""
-    if task_info(task).navigation:
-        draw_arena(ax, task)
-    else:
-        draw_lander_zones(ax)
+    """The task's map (its TaskInfo's arena, e.g. a navigation task's unit square or Lunar
+    Lander's screen) with the zones its TaskInfo names."""
+    info = task_info(task)
+    x0, x1, y0, y1 = extent(task)
+    for z in info.zones:
+        if z.style == "bar":
+            ax.plot([z.x_min, z.x_max], [z.y_min, z.y_min], color=z.colour, lw=4, label=z.label,
+                    solid_capstyle="butt")
+        else:
+            ax.add_patch(Rectangle((z.x_min, z.y_min), z.x_max - z.x_min, z.y_max - z.y_min, fill=False,
+                                   edgecolor=z.colour, lw=1.5, label=z.label,
+                                   ls="--" if z.style == "dashed" else "-"))
+    # a bar on the map's bottom edge (a pad on the ground) gets room to show
+    below = 0.05 if any(z.style == "bar" and z.y_min <= y0 for z in info.zones) else 0.0
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0 - below, y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
 
 
 def _save(fig, path: Path) -> Path:
@@ -107,7 +81,7 @@ def reward_map_figure(task: str, maps: list, path: Path) -> Path:
             draw_zones(ax, task)
             ax.set_title(f"{name}: {label}", fontsize=9)
     fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8, label="reward for one step at (x, y)")
-    fig.suptitle(f"{task}: reward over the {'screen' if task == 'lunar_lander' else 'arena'} "
+    fig.suptitle(f"{task}: reward over the {task_info(task).map_name} "
                  "after a context", fontsize=10)
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -104,8 +104,16 @@ def build(probe: Probe, length: int = EPISODE_LENGTH) -> np.ndarray:
 def probe_states(task: str) -> list:
     """[(Probe, states (100, 2) float32)] of a navigation task; Lunar Lander's rollouts
     (`lander_probes`: (LanderProbe, states (T, 8))); [] for tasks without probes."""
-    if task == "lunar_lander":
-        from .lander_probes import lander_probe_states
-
-        return lander_probe_states()
+    if task in ROLLOUT_PROBES:  # probes whose paths come out of a simulator
+        return ROLLOUT_PROBES[task]()
     return [(probe, build(probe)) for probe in PROBES.get(task, ())]
+
+
+def _lander_probe_states() -> list:
+    from .lander_probes import lander_probe_states
+
+    return lander_probe_states()
+
+
+#: task -> a function returning its probes as rollouts [(probe, states (T, d))]
+ROLLOUT_PROBES: dict = {"lunar_lander": _lander_probe_states}

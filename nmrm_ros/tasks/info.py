@@ -6,7 +6,8 @@ environment); the rest of the package asks `task_info(task)` (`nmrm_ros.tasks`) 
 its fields, never on a task's name. Fields: the state layout and actions, the reward models'
 layer-size family, the returns a person may label, the 2D map (arena) the views draw, how a
 screened dataset is built (and the class rule of a class-screened task), whether the env renders
-frames, whether it is one of the navigation tasks (continuous variant, the demo).
+frames, whether it is one of the navigation tasks (continuous variant, the demo), and the zones
+the views draw on its map.
 """
 
 from __future__ import annotations
@@ -38,6 +39,21 @@ SCREENINGS = ("classes", "pool", "return_bins")
 
 
 @dataclass(frozen=True)
+class MapZone:
+    """A zone the views draw on a task's map, in state coordinates s[0], s[1]: a rectangle
+    (style "box", or "dashed"), or a thick line along its bottom edge ("bar", e.g. a landing pad);
+    label: its legend entry (None: unlabelled, e.g. a second zone of the same kind)."""
+
+    label: str | None
+    colour: str
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+    style: str = "box"
+
+
+@dataclass(frozen=True)
 class TaskInfo:
     """What the package knows of a task.
 
@@ -51,7 +67,8 @@ class TaskInfo:
     classify(states (n, L, d), labels, key_fourth_class) -> class ids (n,): the class rule of a
     task screened by class (None otherwise); renders: the env draws RGB frames; navigation: one of
     the 2D navigation tasks (a continuous-action variant, `nmrm demo`); map_states: the state at
-    each map point (N, 2) -> (N, d) when d > 2 (`states_at`), and what the views say of it (map_note)."""
+    each map point (N, 2) -> (N, d) when d > 2 (`states_at`), and what the views say of it (map_note);
+    map_name: what the map is called in a figure's title; zones: the `MapZone`s drawn on it."""
 
     name: str
     state_size: int
@@ -68,6 +85,8 @@ class TaskInfo:
     navigation: bool = False
     map_states: Callable | None = None
     map_note: str = ""
+    map_name: str = "arena"
+    zones: tuple = ()
 
     def states_at(self, points):
         """The states the views draw at 2D map points (N, 2) -> (N, state_size) (`map_states`;

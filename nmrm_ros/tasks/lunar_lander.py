@@ -236,14 +236,20 @@ def map_states(points: np.ndarray) -> np.ndarray:
 
 
 def _task_info():
-    from .info import TaskInfo
+    from ..oracles.lunar_lander import HOVER_ZONE, PAD_HALF_WIDTH
+    from .info import MapZone, TaskInfo
+
+    # the oracle's zones (paper App. D.1): the pad on the ground (gold), the hover zone (green)
+    zones = (MapZone("pad", "goldenrod", -PAD_HALF_WIDTH, PAD_HALF_WIDTH, 0.0, 0.0, "bar"),
+             MapZone("hover zone", "green", *HOVER_ZONE))
 
     # returns stay within +-1000: the per-step rewards are bounded by the oracle's terms
     return TaskInfo("lunar_lander", STATE_SIZE, False, 2, EPISODE_LENGTH, family="lunar_lander",
                     return_range=(-1000.0, 1000.0), arena=ARENA, screening="pool",
                     screening_classes=screening_classes, classify=lunar_lander_classes, renders=True,
                     map_states=map_states, map_note="The lander at rest there (velocities and angle 0); legs "
-                                                    "on the ground on the bottom row only.")
+                                                    "on the ground on the bottom row only.",
+                    map_name="screen", zones=zones)
 
 
 TASK_INFO = _task_info()

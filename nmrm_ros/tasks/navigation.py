@@ -165,7 +165,28 @@ def navigation_task_info(task: str):
     return TaskInfo(task, 2, True, N_ACTIONS, EPISODE_LENGTH, family="navigation",
                     return_range=RETURN_RANGES[task], arena=(0.0, 1.0, 0.0, 1.0), screening="classes",
                     screening_classes=partial(screening_classes, task), classify=partial(classify, task),
-                    navigation=True)
+                    navigation=True, zones=map_zones(task))
+
+
+def map_zones(task: str) -> tuple:
+    """The zones the views draw on a navigation task's arena: spawn (grey), treasure (gold;
+    Moving: its row, dashed), key (blue), charger (green)."""
+    from .info import MapZone
+
+    def box(z: Zone, label, colour: str, style: str = "box") -> MapZone:
+        return MapZone(label, colour, z.x_min, z.x_max, z.y_min, z.y_max, style)
+
+    zones = [box(z, "spawn" if i == 0 else None, "grey") for i, z in enumerate(SPAWN_ZONES)]
+    if task == "moving":
+        zones.append(box(Zone(0.0, 1.0, TREASURE_ZONE.y_min, TREASURE_ZONE.y_max), "treasure row",
+                         "goldenrod", "dashed"))
+    else:
+        zones.append(box(TREASURE_ZONE, "treasure", "goldenrod"))
+    if task == "key":
+        zones.append(box(KEY_ZONE, "key", "royalblue"))
+    if task == "charger":
+        zones.append(box(Zone(0.0, 1.0, 0.0, CHARGE_Y_MAX), "charger", "green"))
+    return tuple(zones)
 
 
 def screening_classes(task: str, key_fourth_class: bool = False):
