@@ -7,6 +7,9 @@ from pathlib import Path
 
 import typer
 
+from ..feedback import unknown_feedback
+
+
 def writable_dir(value: Path | None) -> Path | None:
     """Option callback: an output directory that cannot be written is a one-line error at once."""
     from ..output_paths import check_writable_dir
@@ -127,8 +130,8 @@ def check_teacher(feedback: str, pairs, beta, mistake, equal, gamma, skip) -> No
     """The feedback options checked before any episode is rolled out."""
     from ..datasets.preference_teacher import SimulatedTeacher
 
-    if feedback not in ("returns", "preferences", "both"):
-        raise typer.BadParameter(f"--feedback must be returns, preferences or both, got {feedback!r}")
+    if unknown_feedback(feedback, "--feedback"):
+        raise typer.BadParameter(unknown_feedback(feedback, "--feedback"))
     if feedback == "returns" and pairs is not None:
         raise typer.BadParameter("--pairs needs --feedback preferences or both")
     SimulatedTeacher(beta=beta, mistake=mistake, equal=equal, gamma=gamma, skip=skip).check()

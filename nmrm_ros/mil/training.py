@@ -71,12 +71,13 @@ import yaml
 from ..datasets.label_noise import swap_sources
 from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
+from .. import feedback
 from .ensemble import MILEnsemble, as_ensemble
 from .models import OUTPUT_ACTIVATIONS, MILRewardModel, ModelConfig, model_config
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
 SCHEDULES = ("constant", "cosine", "plateau")
-FEEDBACK = ("returns", "preferences", "both")
+FEEDBACK = feedback.FEEDBACK  # the kinds of labels trained on (nmrm_ros/feedback.py)
 
 
 @dataclass

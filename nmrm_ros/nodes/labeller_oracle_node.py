@@ -44,6 +44,7 @@ from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.messages import to_float_list
 from ..datasets.label_noise import OnlineLabelSwapper
 from ..datasets.preference_teacher import SimulatedTeacher
+from ..feedback import unknown_feedback
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param,
                              require_oracle, require_task)
@@ -97,8 +98,8 @@ class LabellerOracleNode(NmrmNode):
         self.labeller = f"oracle/{self.task}"
         self.labelled = 0
         self.feedback = p["feedback"]
-        if self.feedback not in ("returns", "preferences", "both"):
-            raise NodeError(f"feedback must be returns, preferences or both, got {self.feedback!r}")
+        if unknown_feedback(self.feedback):
+            raise NodeError(unknown_feedback(self.feedback))
         try:
             self.teacher = SimulatedTeacher(p["teacher_beta"], p["teacher_mistake"], p["teacher_equal"],
                                             p["teacher_gamma"], p["teacher_skip"]).check()

@@ -58,6 +58,7 @@ import numpy as np
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from sensor_msgs.msg import CompressedImage
 
+from ..feedback import unknown_feedback
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import (NodeError, Param, live_parameter,
@@ -113,8 +114,8 @@ class LabellerWebNode(NmrmNode):
             raise NodeError(f"people must be different names, got {people}")
         if p["assignment"] not in ("split", "overlap"):
             raise NodeError(f"assignment must be split or overlap, got {p['assignment']!r}")
-        if p["feedback"] not in ("returns", "preferences", "both"):
-            raise NodeError(f"feedback must be returns, preferences or both, got {p['feedback']!r}")
+        if unknown_feedback(p["feedback"]):
+            raise NodeError(unknown_feedback(p["feedback"]))
         self.feedback = p["feedback"]
         self.people = people
         self.labeller = f"person/{people[0]}"

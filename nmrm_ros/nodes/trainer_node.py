@@ -38,6 +38,7 @@ from rclpy.parameter import Parameter
 
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 
+from ..feedback import unknown_feedback
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import NodeError, Param, require_task
@@ -91,8 +92,8 @@ class TrainerNode(NmrmNode):
         self.task = p["task"]
         if p["architecture"] not in ARCHITECTURES:
             raise NodeError(f"unknown architecture {p['architecture']!r}; known: {', '.join(ARCHITECTURES)}")
-        if p["feedback"] not in ("returns", "preferences", "both"):
-            raise NodeError(f"feedback must be returns, preferences or both, got {p['feedback']!r}")
+        if unknown_feedback(p["feedback"]):
+            raise NodeError(unknown_feedback(p["feedback"]))
         self.p = p
         self.labellers = [str(x) for x in p["labeller"] if str(x)]
         self.set = TrainingSet(self.task, self.info.state_size, source=self.get_namespace().rstrip("/"))
