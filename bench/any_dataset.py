@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD, mean_sem
+from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD, mean_sem, mean_seconds
 from nmrm_ros.datasets.cache import cached_dataset
 from nmrm_ros.mil.training import parse_settings
 
@@ -35,38 +35,6 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "any_dataset"
 NAV = ("timer", "moving", "key", "charger")
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
-
-
-def ens_seeds(r: int, cfg) -> list:
-    """Weight seeds of repeat r's members: r + 1000 j."""
-    return [r + 1000 * j for j in range(cfg.members)]
-
-
-def train_repeat(arch: str, ds, held, r: int, cfg) -> tuple:
-    """Repeat r: `cfg.members` models of `arch` (weight seeds r + 1000 j) trained in one pass on
-    split r of `ds`; (ensemble, train result, seconds, test metrics, held-out metrics), both of the
-    members' mean. seconds: the training's CPU time in this process (its wall time with one torch
-    thread, whatever else the machine runs or however long the bench is paused)."""
-    from nmrm_ros.mil import evaluate
-    from nmrm_ros.mil.data import split_indices
-    from nmrm_ros.mil.ensemble import MILEnsemble, init_ensemble
-    from nmrm_ros.mil.training import train_ensemble
-
-    seeds = ens_seeds(r, cfg)
-    train, val, test = split_indices(len(ds), r)
-    ens = init_ensemble(cfg.model_config(arch, ds.task, ds.state_size), seeds)
-    t0 = time.process_time()
-    result = train_ensemble(ens, ds, [(train, val)] * len(seeds), cfg, seeds=seeds, progress=False)
-    seconds = time.process_time() - t0
-    mean = MILEnsemble.from_members([ens.member(m) for m in range(len(seeds))])
-    return ens, result, seconds, evaluate(mean, ds.subset(test)), evaluate(mean, held)
-
-
-def mean_seconds(runs: list) -> str:
-    """The runs' mean training time, 6 characters: CPU seconds (runs record "clock": "cpu"), or
-    wall seconds marked "w" where any run is older and measured wall time (pauses included)."""
-    wall = any(r.get("clock") != "cpu" for r in runs)
-    return f"{np.mean([r['seconds'] for r in runs]):5.0f}" + ("w" if wall else " ")
 
 
 def run_repeat(job: tuple) -> dict:
@@ -79,13 +47,16 @@ def run_repeat(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil import evaluate, fit, load_train_config
 
     ds = cached_dataset(task, 5000, r)
     held = cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, **overrides)
-    ens, result, seconds, on_test, on_held = train_repeat("csc_lstm", ds, held, r, cfg)
-    seeds = ens_seeds(r, cfg)
+    t0 = time.process_time()  # weight seeds r + 1000 j (cfg.seed = r), split r; CPU time: as wall time on 1 thread
+    run = fit(ds, "csc_lstm", cfg, members=cfg.members, split_seed=r, offsets=[1000 * j for j in range(cfg.members)],
+              progress=False)
+    seconds = time.process_time() - t0
+    result, seeds, on_test, on_held = run.train, run.meta.ensemble.seeds, run.meta.metrics["test"], evaluate(run.model, held)
     res = {"task": task, "repeat": r, "data_seed": r, "weight_seeds": seeds, "split_seed": r,
            "held_out_seed": HELD_OUT_SEED, "members": len(seeds),
            "test_return_mse": on_test["return_mse"], "test_reward_mse": on_test["reward_mse"],

@@ -27,7 +27,6 @@ import random
 import re
 import shutil
 import signal
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -35,7 +34,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
 
 
 class Hang(Exception):
@@ -135,7 +133,7 @@ def _abandoned(out: str) -> int:
 
 
 def inject_messages(n: int, seed: int) -> list:
-    from graph_helpers import Capture, finish, launch
+    from nmrm_ros.testing.graph import Capture, finish, launch
 
     from nmrm_msgs.msg import EnvObservation
     from nmrm_ros.ros.topics import OBSERVATION
@@ -195,7 +193,7 @@ def inject_messages(n: int, seed: int) -> list:
 
 
 def kill_restart(times: int, seed: int) -> list:
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
 
     os.environ["ROS_DOMAIN_ID"] = str(100 + seed % 50)
     rows = []

@@ -99,8 +99,7 @@ def learnt_rewards(model, states: np.ndarray, lengths: np.ndarray) -> np.ndarray
     online = OnlineRewardModel(model)
     out = np.zeros(states.shape[:2])
     for i, (episode, n) in enumerate(zip(states, lengths)):
-        online.reset()
-        out[i, :n] = [online.step(s)[0] for s in episode[:n]]
+        out[i, :n] = online.episode_rewards(episode[:n])
     return out
 
 

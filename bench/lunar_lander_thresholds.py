@@ -40,12 +40,11 @@ LAND_XS = (0.0, 0.25, 0.4, 0.6)  # landing targets: the lander comes to rest at 
 
 def model_returns(checkpoint: str, states: list) -> np.ndarray:
     """The model's return of each episode (states (T, 8) each), stepped online as served."""
-    from lunar_lander_rewards import learnt_rewards
-    from nmrm_ros.mil import load_checkpoint
+    from nmrm_ros.mil import OnlineRewardModel, load_checkpoint
 
     model, _ = load_checkpoint(checkpoint, task="lunar_lander")
-    return np.asarray([learnt_rewards(model, episode[None], np.array([len(episode)]))[0].sum()
-                       for episode in states])
+    online = OnlineRewardModel(model)
+    return np.asarray([online.episode_rewards(episode).sum() for episode in states])
 
 
 def probe_table(checkpoints: list) -> str:
@@ -134,18 +133,18 @@ def agent_timeline(agent: Path, agent_checkpoint: str, episodes: int, shown: int
     `window` steps of the first `shown` episodes, the lander's mean x, y and leg contacts, the
     oracle's pad count, and the oracle's and the model's pay (issue 31: an agent that hopped after
     its 50 pad steps and sat down again, paid ~1.5 a step by the model, ~0.1 by the oracle)."""
-    from lunar_lander_rewards import learnt_rewards
-    from nmrm_ros.mil import load_checkpoint
+    from nmrm_ros.mil import OnlineRewardModel, load_checkpoint
     from nmrm_ros.oracles import make_oracle
 
     states, _ = agent_episodes(agent, agent_checkpoint, episodes)
     model, _ = load_checkpoint(agent_checkpoint, task="lunar_lander")
+    online = OnlineRewardModel(model)
     oracle = make_oracle("lunar_lander")
     lines = [f"# {agent.name}: its first {shown} greedy episodes per {window} steps, paid by the oracle and by "
              f"{Path(agent_checkpoint).name}",
              f"{'ep':>2} {'t':>4} {'x':>6} {'y':>6} {'legs':>9} {'pad':>4} {'oracle':>7} {'model':>7}"]
     for i, s in enumerate(states[:shown]):
-        learnt = learnt_rewards(model, s[None], np.array([len(s)]))[0]
+        learnt = online.episode_rewards(s)
         labels = oracle.label(s[None])
         pad = np.asarray(labels.hidden[0]).reshape(len(s), -1)[:, 0]
         paid = labels.rewards[0]

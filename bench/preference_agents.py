@@ -33,10 +33,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from preferences import FINAL_WINDOW, HELD_OUT_N, HELD_OUT_SEED, MODELS, RESULTS, RL_N, run_name
 from nmrm_ros.datasets.cache import cached_dataset
 
+ROOT = Path(__file__).resolve().parents[1]
+# what bench/preferences.py --rl wrote (its file layout and run names), read here
+RESULTS = ROOT / "bench" / "results" / "preferences"
+MODELS = ROOT / "runs" / "preferences"
+HELD_OUT_SEED, HELD_OUT_N = 999, 2000  # its held-out episodes
+RL_N, FINAL_WINDOW = 4000, 50  # its agents' models: 4000 labels or comparisons; final return: last 50 episodes
 EPISODES = 50
+
+
+def run_name(task: str, arch: str, teacher: str, n: int, r: int) -> str:
+    """bench/preferences.py's name of run (task, arch, teacher, n, data seed r)."""
+    return f"{task}_{arch}_{teacher}_n{n}_s{r}"
 
 
 def model_rewards(ens, states: np.ndarray, lengths: np.ndarray) -> np.ndarray:

@@ -32,7 +32,6 @@ from __future__ import annotations
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import json
-import math
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -40,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from any_dataset import ens_seeds, mean_seconds, train_repeat
+from nmrm_ros.paper import mean_seconds
 from nmrm_ros.datasets.cache import cached_dataset
 from nmrm_ros.mil.training import parse_settings
 
@@ -82,13 +81,16 @@ def run(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil import evaluate, fit, load_train_config
 
     ds, feedback = training_data(task, teacher, n, r)
     held = cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, feedback=feedback, **overrides)
-    seeds = ens_seeds(r, cfg)
-    ens, result, seconds, on_test, on_held = train_repeat(arch, ds, held, r, cfg)  # scored as the mean of its members
+    t0 = time.process_time()  # weight seeds r + 1000 j (cfg.seed = r), split r; CPU time: as wall time on 1 thread
+    run = fit(ds, arch, cfg, members=cfg.members, split_seed=r, offsets=[1000 * j for j in range(cfg.members)],
+              progress=False)
+    seconds = time.process_time() - t0
+    result, seeds, on_test, on_held = run.train, run.meta.ensemble.seeds, run.meta.metrics["test"], evaluate(run.model, held)
     keep = ("preference_accuracy", "reward_correlation", "reward_correlation_centred", "return_mse", "reward_mse")
     res = {"task": task, "arch": arch, "teacher": teacher, "teacher_knobs": TEACHERS[teacher], "n": n,
            "seed": r, "data_seed": r, "weight_seeds": seeds, "feedback": feedback,
@@ -96,14 +98,8 @@ def run(job: tuple) -> dict:
            "test": {k: on_test[k] for k in keep}, "held": {k: on_held[k] for k in keep},
            "best_epochs": result.best_epochs, "epochs": result.epochs_run,
            "still_improving": result.still_improving, "seconds": seconds, "clock": "cpu", "config": cfg.to_dict()}
-    from nmrm_ros.mil import Run
-    from nmrm_ros.mil.checkpoint import DataInfo, EnsembleInfo
-
-    serving = int(np.argmin(result.best_val_loss))
-    ens.serving_member.fill_(serving)
-    Run.of(ens, task, seed=r, split_seed=r, train_config=cfg.to_dict(), ensemble=EnsembleInfo(len(seeds), serving, seeds),
-           data=DataInfo(n=len(ds), meta=ds.meta), metrics={"test": on_test, "held": on_held}
-           ).save(MODELS / out.name / "models" / run_name(task, arch, teacher, n, r))
+    run.replace(metrics={**run.meta.metrics, "held": on_held}).save(
+        MODELS / out.name / "models" / run_name(task, arch, teacher, n, r))
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{run_name(task, arch, teacher, n, r)}.json").write_text(json.dumps(res, indent=1))
     return res

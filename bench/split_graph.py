@@ -23,15 +23,13 @@ import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not th
 import argparse
 import os
 import re
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
-from netns_hosts import HostsUnavailable, in_host, make_hosts, remove_hosts  # noqa: E402
+from nmrm_ros.testing.netns import HostsUnavailable, in_host, make_hosts, remove_hosts  # noqa: E402
 
 
 def _stamp(msg) -> float:

@@ -15,8 +15,10 @@ measure any other. Datasets are screened by
 return bins from random-policy pools (nmrm_ros.datasets.return_screening); episodes vary in length.
 
 models: repeat r trains the CSC LSTM and the Markovian Instance Space NN (config your_own_task:
-the mean of 3 models, member j weight seed r + 1000 j) on split r of a dataset of data seed r
-(N episodes), scored on its test split and on a held-out dataset of data seed 999.
+the mean of 3 models, member j weight seed r + 1000 j; `nmrm_ros.mil.fit`, as `nmrm train`: the
+served member is the best on validation) on split r of a dataset of data seed r (N episodes),
+scored on its test split and on a held-out dataset of data seed 999. Models trained before
+2026-12-06 served member 0 (their checkpoints record it; they are not retrained).
 agents: double DQN (config/rl.yaml, 400 episodes; --rl-set changes settings) on the repeat-0 CSC model's reward (served
 state: the default), on the oracle's reward with its hidden state, and without it; agent seeds as
 given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm rl evaluate`).
@@ -39,8 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from any_dataset import ens_seeds, mean_seconds, train_repeat
-from nmrm_ros.paper import mean_sem
+from nmrm_ros.paper import mean_sem, mean_seconds
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
 from nmrm_ros.resume import stale_rl_settings, stale_settings
 
@@ -102,16 +103,17 @@ def run_model(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from nmrm_ros.mil import Run, load_train_config
-    from nmrm_ros.mil.checkpoint import EnsembleInfo
+    from nmrm_ros.mil import evaluate, fit, load_train_config
 
     ds, held = dataset(setting, N, r), dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(setting.task, seed=r)
-    ens, result, seconds, on_test, on_held = train_repeat(arch, ds, held, r, cfg)
-    seeds = ens_seeds(r, cfg)
+    t0 = time.process_time()  # weight seeds r + 1000 j (cfg.seed = r), split r; CPU time: as wall time on 1 thread
+    run = fit(ds, arch, cfg, members=cfg.members, split_seed=r, offsets=[1000 * j for j in range(cfg.members)],
+              progress=False)
+    seconds = time.process_time() - t0
+    result, seeds, on_test, on_held = run.train, run.meta.ensemble.seeds, run.meta.metrics["test"], evaluate(run.model, held)
     path = checkpoint_path(setting, arch, r)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Run.of(ens, setting.task, ensemble=EnsembleInfo(len(seeds), 0, seeds)).save(path)
+    run.save(path)
     res = {"arch": arch, "repeat": r, "data_seed": r, "n": N, "weight_seeds": seeds,
            "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
            "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],

@@ -1,6 +1,6 @@
 """The paper's reported figures (Early, Bewley et al., NeurIPS 2022), to set our results beside:
 `PAPER_RETURN[arch][task]` and `PAPER_REWARD[arch][task]` are (mean, SEM) of the test return MSE and
-reward MSE; `mean_sem` summarises our repeats the same way."""
+reward MSE; `mean_sem` summarises our repeats the same way, `mean_seconds` their training time."""
 
 from __future__ import annotations
 
@@ -42,3 +42,10 @@ def mean_sem(values: list) -> tuple:
     """(mean, standard error of the mean) of `values` (SEM 0 for a single value)."""
     v = np.asarray(values, dtype=np.float64)
     return float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else 0.0
+
+
+def mean_seconds(runs: list) -> str:
+    """The runs' mean training time, 6 characters: CPU seconds (runs record "clock": "cpu"), or
+    wall seconds marked "w" where any run is older and measured wall time (pauses included)."""
+    wall = any(r.get("clock") != "cpu" for r in runs)
+    return f"{np.mean([r['seconds'] for r in runs]):5.0f}" + ("w" if wall else " ")

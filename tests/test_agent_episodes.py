@@ -5,7 +5,7 @@ import subprocess
 import numpy as np
 import pytest
 import torch
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 
 from nmrm_ros.rl.agent_episodes import AgentEpisodes, rollout_agent
 from nmrm_ros.datasets.screening import screen_lunar_lander

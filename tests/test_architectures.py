@@ -70,6 +70,7 @@ def test_a_new_architecture_is_one_registry_entry(monkeypatch):
         r, h = online.step(s)
         assert r == pytest.approx(rewards[t], abs=1e-5)
         np.testing.assert_allclose(h, served[t], atol=1e-5)
+    np.testing.assert_allclose(online.episode_rewards(states), rewards, atol=1e-5)  # from a fresh start
     assert served_states(ens, states[None]).shape == (1, 30, 2 * config.hidden_size)
     # and training: the members' losses fall through the new rule
     ds = make_toy_dataset("push_switch", n_bags=200, seed=0)

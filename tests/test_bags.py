@@ -9,7 +9,7 @@ import torch
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from graph_helpers import Capture, executable, finish, start
+from nmrm_ros.testing.graph import Capture, executable, finish, start
 from nmrm_msgs.msg import EnvObservation, TrajectoryReturn
 from nmrm_ros.bags import (BagError, BagWriter, bag_summary, iter_decoded, load_bag_dataset, repair_bag,
                            write_dataset_bag)

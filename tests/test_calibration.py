@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 from nmrm_ros.datasets import make_toy_dataset
 from nmrm_ros.datasets.trajectories import TrajectoryDataset
 from nmrm_ros.mil import Run, evaluate, load_checkpoint

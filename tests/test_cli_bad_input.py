@@ -8,7 +8,7 @@ import pytest
 
 from pathlib import Path
 
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graph_helpers import finish, launch
+from nmrm_ros.testing.graph import finish, launch
 
 
 def _children(pid: int) -> list:
@@ -80,7 +80,7 @@ FAST = {"action_timeout": 0.5, "max_retries": 2}  # an abandoned episode costs ~
 def _graph_params(tmp_path) -> Path:
     import yaml
 
-    from graph_helpers import REPO
+    REPO = Path(__file__).resolve().parents[1]
 
     params = yaml.safe_load((REPO / "config" / "graph.yaml").read_text())
     params["/**/env_sim"]["ros__parameters"].update(FAST)
@@ -103,7 +103,7 @@ def _abandoned(out: str) -> int:
 
 def test_bad_observations_cost_at_most_their_episode(ros_domain, tmp_path):
     """Finding 1: one malformed observation stopped the whole graph (2 of 20 episodes done)."""
-    from graph_helpers import Capture
+    from nmrm_ros.testing.graph import Capture
     from nmrm_msgs.msg import EnvObservation
     from nmrm_ros.ros.topics import OBSERVATION
 
@@ -135,7 +135,7 @@ def test_bad_observations_cost_at_most_their_episode(ros_domain, tmp_path):
 
 def test_a_killed_and_restarted_reward_model_costs_one_episode(ros_domain, tmp_path):
     """Finding 1: after kill -9 and a restart of reward_model the loop never resumed."""
-    from graph_helpers import Capture, start
+    from nmrm_ros.testing.graph import Capture, start
 
     episodes = 30
     cap = Capture()
@@ -188,7 +188,7 @@ def _flip(file, offset):
 
 
 def _nmrm(*args):
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     return subprocess.run([executable("nmrm"), *args], capture_output=True, text=True, timeout=300)
 
@@ -302,7 +302,7 @@ def test_edited_normalisation_and_empty_weights_are_refused(two_checkpoints, tmp
 
 # -- finding 8 ----------------------------------------------------------------------------------------
 def test_two_nodes_with_one_name_are_warned_about(ros_domain):
-    from graph_helpers import start
+    from nmrm_ros.testing.graph import start
 
     a = start("env_sim", task="key", episodes=1, startup_timeout=6.0)
     b = start("env_sim", task="key", episodes=1, startup_timeout=6.0)
@@ -323,7 +323,7 @@ def _ignore_sigint() -> None:
 ])
 def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path, sig, inherited):
     """Finding 8: a failed `dataset generate` left a bag folder that blocked the re-run."""
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     out = tmp_path / "key_bag"
     proc = subprocess.Popen([executable("nmrm"), "dataset", "generate", "--task", "key", "--episodes", "3000",
@@ -355,7 +355,7 @@ def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path, sig, in
     ("foxglove_server", "port:=70000", "cannot serve on 127.0.0.1:70000: port 70000 is not one of 0-65535"),
 ])
 def test_wrong_parameters_get_one_line(ros_domain, node, param, message):
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     result = subprocess.run([executable(node), "--ros-args", "-p", param], capture_output=True, text=True,
                             timeout=60)
@@ -368,7 +368,7 @@ def test_a_labelling_page_that_cannot_be_served_leaves_no_labels_dir(ros_domain,
     would have created (an empty session bag, the waiting-episodes folder) is not left behind."""
     import socket
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     taken = socket.socket()
     taken.bind(("127.0.0.1", 0))
@@ -388,7 +388,7 @@ def test_a_labelling_page_that_cannot_be_served_leaves_no_labels_dir(ros_domain,
 def test_lossless_conversions_and_unknown_names(ros_domain):
     """start_delay:=4 (an integer for a double) and wait_for_nodes:=agent (a string for a string
     array) used to kill env_sim; unknown names were accepted silently."""
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     result = subprocess.run([executable("env_sim"), "--ros-args", "-p", "start_delay:=4", "-p",
                              "wait_for_nodes:=agent", "-p", "startup_timeout:=0.5", "-p", "epsiodes:=3"],

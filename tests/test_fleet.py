@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graph_helpers import REPO, executable, finish
+from nmrm_ros.testing.graph import executable, finish
 from nmrm_ros.bags import iter_decoded, load_bag_dataset
+
+REPO = Path(__file__).resolve().parents[1]
 
 LAUNCH_DIR = REPO / "launch_scripts"
 ROS2 = Path(os.environ.get("NMRM_VENV", REPO / ".venv")) / "bin" / "ros2"

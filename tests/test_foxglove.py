@@ -12,7 +12,7 @@ from pathlib import Path
 
 import aiohttp
 
-from graph_helpers import finish, start
+from nmrm_ros.testing.graph import finish, start
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "test-token-123"
@@ -151,7 +151,7 @@ def test_a_recorded_bag_is_watched_through_the_same_server(ros_domain, tmp_path)
     from geometry_msgs.msg import PoseStamped
     from rclpy.serialization import deserialize_message
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     bag = tmp_path / "key_bag"
     made = subprocess.run([executable("nmrm"), "dataset", "generate", "--task", "key", "--episodes", "3",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from graph_helpers import finish, start
+from nmrm_ros.testing.graph import finish, start
 from nmrm_ros.bags import iter_decoded
 from nmrm_ros.tasks.frames import encode_frame, frame_id, parse_frame_id
 

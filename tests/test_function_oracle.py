@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 from nmrm_ros.datasets.return_screening import balanced_keep, return_bins, screen_by_return
 from nmrm_ros.oracles import OracleError, make_oracle
 

@@ -7,7 +7,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from graph_helpers import PROBE_EPISODE, Capture, episodes_of, finish, launch, start
+from nmrm_ros.testing.graph import PROBE_EPISODE, Capture, episodes_of, finish, launch, start
 from nmrm_msgs.msg import EnvObservation
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import load_checkpoint, load_train_config

@@ -114,7 +114,7 @@ def test_a_spec_that_names_nothing_usable_is_a_one_line_error(user_module, task,
 def test_the_cli_takes_a_task_spec_and_says_what_is_wrong_in_one_line():
     import subprocess
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     res = subprocess.run([executable("nmrm"), "dataset", "screen", "--task", "gym:NoSuchEnv-v0"],
                          capture_output=True, text=True, timeout=120)

@@ -65,7 +65,7 @@ def test_online_swapper_publishes_true_returns_about_once_each():
 def test_labeller_oracle_swaps_labels_over_real_topics(ros_domain):
     """20 episodes published to a real labeller_oracle with label_noise swap: one label each, every
     label some episode's true return, about half of them another episode's."""
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
     from nmrm_msgs.msg import EnvObservation
     from nmrm_ros.ros.topics import OBSERVATION
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graph_helpers import Capture, executable, finish, start
+from nmrm_ros.testing.graph import Capture, executable, finish, start
 from nmrm_ros.bags import iter_decoded
 from nmrm_ros.labelling import LabelError, LabelQueue, LabelStore
 

@@ -98,3 +98,19 @@ def test_branches_on_a_task_name_live_in_the_task_modules():
     found = {str(f.relative_to(PACKAGE.parent)) for f in PACKAGE.rglob("*.py")
              if "tasks" not in f.relative_to(PACKAGE).parts and pattern.search(f.read_text())}
     assert not found, found
+
+
+def test_bench_scripts_share_nothing_but_the_library():
+    """A bench script imports the package (what a user would call), never another bench script
+    or tests/ (installed_check, which stops a bench on a stale install, is the one exception)."""
+    bench = PACKAGE.parent / "bench"
+    scripts = {f.stem for f in bench.glob("*.py")} - {"installed_check"}
+    found = []
+    for f in sorted(bench.glob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            found += [f"{f.name} imports {n}" for n in names if n.split(".")[0] in scripts]
+        if re.search(r"sys\.path\.(insert|append)\(.*tests", f.read_text()):
+            found.append(f"{f.name} puts tests/ on sys.path")
+    assert not found, found

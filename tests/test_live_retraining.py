@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from graph_helpers import Capture, finish, start
+from nmrm_ros.testing.graph import Capture, finish, start
 from nmrm_msgs.msg import EnvObservation, TrajectoryPreference, TrajectoryReturn
 from nmrm_ros.labelling import LabelQueue
 from nmrm_ros.labelling.active import DisagreementScorer

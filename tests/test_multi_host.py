@@ -15,9 +15,11 @@ from pathlib import Path
 
 import pytest
 
-from graph_helpers import REPO, executable
-from netns_hosts import Hosts, HostsUnavailable, in_host, make_hosts, remove_hosts
+from nmrm_ros.testing.graph import executable
+from nmrm_ros.testing.netns import Hosts, HostsUnavailable, in_host, make_hosts, remove_hosts
 from nmrm_ros.bags import iter_decoded, load_bag_dataset
+
+REPO = Path(__file__).resolve().parents[1]
 
 EPISODES = 3
 

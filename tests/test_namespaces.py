@@ -8,7 +8,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from graph_helpers import executable, finish, start
+from nmrm_ros.testing.graph import executable, finish, start
 from nmrm_ros.bags import bag_summary, load_bag_dataset
 
 REPO = Path(__file__).resolve().parents[1]

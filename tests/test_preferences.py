@@ -189,7 +189,7 @@ def test_labeller_oracle_publishes_comparisons_over_real_topics(ros_domain):
 
     from rclpy.duration import Duration
 
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
     from nmrm_msgs.msg import EnvObservation
     from nmrm_ros.oracles import make_oracle
     from nmrm_ros.ros.topics import OBSERVATION
@@ -242,7 +242,7 @@ def test_team_comparisons_are_reported_and_recorded_as_provenance(tmp_path):
     each other; a dataset from the bags records every comparison it uses."""
     import subprocess
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
     from nmrm_ros.bags import write_dataset_bag
     from nmrm_ros.bags.episodes import load_bag_dataset
     from nmrm_ros.datasets import generate_screened

@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import OnlineRewardModel, load_checkpoint, load_train_config
 from nmrm_ros.mil.online import batched_reference

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 from nmrm_ros.datasets import generate_screened
 from nmrm_ros.mil import load_checkpoint, load_train_config
 from nmrm_ros.mil.checkpoint import checkpoint_paths

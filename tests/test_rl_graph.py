@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import signal
 import subprocess
 import time
@@ -11,9 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from graph_helpers import REPO, executable, finish, start
+from nmrm_ros.testing.graph import executable, finish, start
 from nmrm_ros.bags import load_bag_dataset
 from nmrm_ros.rl import train_agent
+
+REPO = Path(__file__).resolve().parents[1]
 
 LEARN_LAUNCH = REPO / "launch_scripts" / "learn.launch.yaml"
 

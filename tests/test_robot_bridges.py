@@ -126,7 +126,7 @@ def test_observation_bridge_makes_episodes_from_odometry(ros_domain, tmp_path):
     from rclpy.qos import qos_profile_sensor_data
     from std_srvs.srv import Trigger
 
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
     from nav_msgs.msg import Odometry
 
     (tmp_path / "robot.yaml").write_text(SPEC)
@@ -211,7 +211,7 @@ def test_action_bridge_sends_twists_and_stops_safely(ros_domain, tmp_path):
     observation -> a zero twist at once; an unknown index is dropped with a warning."""
     from geometry_msgs.msg import Twist
 
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
     from nmrm_msgs.msg import AgentAction, EnvObservation
     from nmrm_ros.ros.topics import ACTION, OBSERVATION
 
@@ -253,7 +253,7 @@ def test_the_fake_robot_end_to_end_through_the_bridges(ros_domain, tmp_path):
     agent's actions reaching the robot as twists; the graph ends by itself; a model trains on the bag."""
     import subprocess
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
     from nmrm_ros.bags.episodes import load_bag_dataset
 
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
@@ -288,7 +288,7 @@ def test_the_visualizer_publishes_standard_topics(ros_domain):
     from std_msgs.msg import Float32, Float32MultiArray
     from visualization_msgs.msg import MarkerArray
 
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
     from nmrm_msgs.msg import EnvObservation, RewardStep
     from nmrm_ros.ros.topics import OBSERVATION, REWARD_STEP
 
@@ -351,7 +351,7 @@ def test_every_node_reports_on_diagnostics(ros_domain, tmp_path):
     `nmrm: /<node>`, with its counters as key/values (and a rate for the one it counts)."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from graph_helpers import Capture, finish, start
+    from nmrm_ros.testing.graph import Capture, finish, start
 
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
     spec = str(root / "config" / "robots" / "fake_delivery.yaml")
@@ -395,7 +395,7 @@ def test_a_person_labels_the_robots_episodes(ros_domain, tmp_path):
     import os
     import subprocess
 
-    from graph_helpers import OutputLines, executable
+    from nmrm_ros.testing.graph import OutputLines, executable
     from nmrm_ros.bags import iter_decoded
     from nmrm_ros.labelling.client import PageClient
 
@@ -435,7 +435,7 @@ def test_an_agent_learns_through_the_robot_bridges(ros_domain, tmp_path):
     actions reach the robot as twists, and it saves its policy and curve when the bridge is done."""
     import subprocess
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
     spec = (root / "config" / "robots" / "fake_delivery.yaml").read_text()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from graph_helpers import OutputLines, executable, finish
+from nmrm_ros.testing.graph import OutputLines, executable, finish
 from nmrm_ros.bags import bag_summary, iter_decoded, load_bag_dataset
 
 REPO = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from graph_helpers import executable
+from nmrm_ros.testing.graph import executable
 from nmrm_ros.bags import load_bag_dataset
 from nmrm_ros.oracles import make_oracle
 

@@ -117,7 +117,7 @@ def test_a_checkpoint_serves_what_its_training_config_says(tmp_path):
 def _nmrm(*args):
     import subprocess
 
-    from graph_helpers import executable
+    from nmrm_ros.testing.graph import executable
 
     return subprocess.run([executable("nmrm"), *args], capture_output=True, text=True, timeout=300)
 

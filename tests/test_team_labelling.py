@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graph_helpers import Capture, executable, start
+from nmrm_ros.testing.graph import Capture, executable, start
 from nmrm_ros.bags import iter_decoded
 from nmrm_ros.labelling import LabelError, LabelQueue
 from nmrm_ros.labelling.agreement import label_report

@@ -6,10 +6,11 @@ from .evaluation import evaluate
 from .models import (ARCHITECTURE_NAMES, ARCHITECTURES, MILOutput, MILRewardModel, ModelConfig,
                      build_model, model_config)
 from .online import OnlineRewardModel
+from .pipeline import fit
 from .run import Run
 from .training import TrainConfig, TrainResult, load_train_config, train_model
 
 __all__ = ["ARCHITECTURES", "ARCHITECTURE_NAMES", "CheckpointError", "CheckpointMeta", "DataSource", "Run", "MILEnsemble", "MILOutput", "MILRewardModel",
            "ModelConfig", "OnlineRewardModel", "TrainConfig", "TrainResult", "build_model",
-           "as_ensemble", "evaluate", "load_checkpoint", "load_train_config", "model_config",
+           "as_ensemble", "evaluate", "fit", "load_checkpoint", "load_train_config", "model_config",
            "train_model"]

@@ -174,6 +174,12 @@ class OnlineRewardModel:
         self.return_std = float(self.partial_returns.std())
         return float(rewards.mean()), self.hidden.copy()
 
+    def episode_rewards(self, states: np.ndarray) -> np.ndarray:
+        """r'_t (the members' mean) of a whole episode of states (L, d), stepped as served from a
+        fresh start (`reset`, then `step` each), (L,) float64."""
+        self.reset()
+        return np.array([self.step(s)[0] for s in states], dtype=np.float64)
+
 
 def batched_reference(model: MILRewardModel | MILEnsemble, states: np.ndarray,
                       served: str = DEFAULT_SERVED_STATE) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Helpers for graph tests: start node processes, capture every nmrm topic from the test process."""
+"""Graph tests: start node processes and `nmrm launch`, capture every nmrm topic from this process."""
 
 from __future__ import annotations
 
@@ -6,21 +6,18 @@ import os
 import subprocess
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 import rclpy
 
-from nmrm_ros.ros.ament_paths import node_command
-from nmrm_ros.ros.node_main import TEARDOWN_CUT_EXIT, _executor
+from ..ros.ament_paths import node_command, require_share_dir
+from ..ros.node_main import TEARDOWN_CUT_EXIT, _executor
 
 from nmrm_msgs.msg import (AgentAction, EnvObservation, OracleStep, RewardStep, TrajectoryPreference,
                             TrajectoryReturn)
-from nmrm_ros.ros.topics import (ACTION, OBSERVATION, ORACLE_STEP, REWARD_STEP, STEP_QOS,
+from ..ros.topics import (ACTION, OBSERVATION, ORACLE_STEP, REWARD_STEP, STEP_QOS,
                                  TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN)
 
-REPO = Path(__file__).resolve().parents[1]
-LAUNCH_FILE = REPO / "launch_scripts" / "graph.launch.yaml"
 #: episodes from this number on are `Capture.handshake` probes
 PROBE_EPISODE = 1000
 
@@ -36,7 +33,9 @@ def start(name: str, **params) -> subprocess.Popen:
 
 
 def launch(*arguments: str) -> subprocess.Popen:
-    return subprocess.Popen([executable("nmrm"), "launch", str(LAUNCH_FILE), *arguments],
+    """`nmrm launch` of the installed graph.launch.yaml with launch arguments, output captured."""
+    launch_file = require_share_dir("nmrm_ros") / "launch_scripts" / "graph.launch.yaml"
+    return subprocess.Popen([executable("nmrm"), "launch", str(launch_file), *arguments],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=os.environ.copy())
 

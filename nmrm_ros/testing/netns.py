@@ -1,5 +1,5 @@
 """Two "machines" on one Linux host: network namespaces joined by veth links (root only), for
-the multi-host tests and bench/split_graph.py. `make_hosts` creates them, `remove_hosts` deletes
+the multi-host tests and bench/split_graph.py (root only). `make_hosts` creates them, `remove_hosts` deletes
 them; `in_host` runs a command inside one."""
 
 from __future__ import annotations
