@@ -30,10 +30,11 @@ import numpy as np
 from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD, mean_sem, mean_seconds
 from nmrm_ros.datasets.cache import cached_dataset
 from nmrm_ros.mil.training import parse_settings
+from nmrm_ros.tasks import NAVIGATION_TASKS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "any_dataset"
-NAV = ("timer", "moving", "key", "charger")
+NAV = NAVIGATION_TASKS
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 
 

@@ -44,8 +44,9 @@ import numpy as np
 from nmrm_ros.mil.checkpoint import recorded_weights_sha256
 from nmrm_ros.datasets.cache import stale_data
 from nmrm_ros.resume import stale_rl_settings, stale_settings
+from nmrm_ros.tasks import NAVIGATION_TASKS
 
-TASKS = ("timer", "moving", "key", "charger")
+TASKS = NAVIGATION_TASKS
 ALL_TASKS = TASKS + ("lunar_lander",)
 #: reward kind -> (label, MIL architecture or None)
 KINDS = {

@@ -37,10 +37,12 @@ import numpy as np
 from nmrm_ros.datasets.cache import cached_dataset
 from nmrm_ros.mil.training import parse_settings
 from nmrm_ros.paper import PAPER_RETURN, PAPER_REWARD, mean_sem
+from nmrm_ros.mil import ARCHITECTURES
+from nmrm_ros.tasks import NAVIGATION_TASKS
 
-ARCHS = ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
+ARCHS = ARCHITECTURES  # the paper's four, in its order
 TOY = ("toggle_switch", "push_switch", "dial")
-NAV = ("timer", "moving", "key", "charger")
+NAV = NAVIGATION_TASKS
 LL = ("lunar_lander",)
 TABLES = {"toy": TOY, "nav": NAV, "ll": LL}
 LL_REWARD_UNIT = 1e-5  # the paper's Lunar Lander reward MSEs are given in units of 1e-5

@@ -28,9 +28,10 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from nmrm_ros.tasks import NAVIGATION_TASKS
 
 ROOT = Path(__file__).resolve().parents[1]
-TASKS = ("timer", "moving", "key", "charger")
+TASKS = NAVIGATION_TASKS
 KINDS = ("h_tanh_c", "h_c", "h", "oracle")  # the served states (nmrm_ros.mil.served_state), the oracle
 LABELS = {"h_tanh_c": "CSC, [h', tanh c'] served", "h_c": "CSC, [h', c'] served", "h": "CSC, h' served",
           "oracle": "oracle with hidden state"}
