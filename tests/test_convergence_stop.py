@@ -79,3 +79,30 @@ def test_only_progress_by_min_improvement_resets_the_clocks():
     assert strict.best_val_loss[0] == pytest.approx(min(losses))  # the best weights: any improvement
     with pytest.raises(ValueError, match="min_improvement"):
         load_train_config("toggle_switch", min_improvement=1.0)
+
+
+def test_members_that_are_done_are_not_computed():
+    """Once a plateau member is done (factor 0) the training forward leaves it out, and the others
+    train as they did with it (same best epochs as each trained alone)."""
+    ds = make_toy_dataset("push_switch", 400, seed=1)
+    splits = [split_indices(len(ds), s)[:2] for s in (0, 1, 2)]
+    cfg = load_train_config("push_switch", schedule="plateau", max_epochs=60, plateau_patience=2, min_lr_ratio=0.05)
+    config = model_config("csc_lstm", "push_switch", 2)
+    ens = init_ensemble(config, [0, 1, 2])
+    computed = []
+    forward = ens.forward
+
+    def counting(x, lengths, members=None):
+        if ens.training:
+            computed.append(3 if members is None else len(members))
+        return forward(x, lengths, members)
+
+    ens.forward = counting
+    result = train_ensemble(ens, ds, splits, cfg, seeds=[0, 1, 2], progress=False)
+    done = sorted(next(h["epoch"] for h in result.history if h["lr_factor"][m] == 0) for m in range(3))
+    assert done[0] < done[-1] and min(computed) < 3  # members finished apart, and were left out
+    steps = len(computed) // result.epochs_run
+    assert computed[done[0] * steps] < 3  # from the epoch after the first one was done
+    for m in range(3):
+        alone = train_ensemble(init_ensemble(config, [m]), ds, splits[m:m + 1], cfg, seeds=[m], progress=False)
+        assert alone.best_epochs[0] == result.best_epochs[m]

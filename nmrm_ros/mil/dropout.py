@@ -50,22 +50,24 @@ class MemberDropout:
         self.p = float(p)
         self.widths = [int(w) for w in widths]
         self.streams = [np.random.SFC64(np.random.SeedSequence([int(s), 0xD80])) for s in seeds]
-        self._buffers: tuple = ((), [])  # (bags, horizon), one (K, bags, horizon, F) tensor per width
+        self._buffers: tuple = ((), [])  # (members, bags, horizon), one (K, bags, horizon, F) tensor per width
 
     @property
     def members(self) -> int:
         return len(self.streams)
 
-    def take(self, bags: int, steps: list) -> list:
-        """This step's masks: one float32 tensor (K, bags * max(steps), F) per layer width."""
-        K, horizon = self.members, max(steps, default=0)
+    def take(self, bags: int, steps: list, members: torch.Tensor | None = None) -> list:
+        """This step's masks: one float32 tensor (K, bags * max(steps), F) per layer width; with
+        `members` (indices, K') only those members' streams draw, for their K' step counts."""
+        streams = self.streams if members is None else [self.streams[int(m)] for m in members]
+        K, horizon = len(streams), max(steps, default=0)
         if len(steps) != K:
             raise ValueError(f"{K} members need {K} step counts, got {len(steps)}")
-        if self._buffers[0] != (bags, horizon):
-            self._buffers = ((bags, horizon), [torch.empty(K, bags, horizon, w) for w in self.widths])
+        if self._buffers[0] != (K, bags, horizon):
+            self._buffers = ((K, bags, horizon), [torch.empty(K, bags, horizon, w) for w in self.widths])
         masks = self._buffers[1]
         threshold = _threshold(self.p)
-        for k, stream in enumerate(self.streams):
+        for k, stream in enumerate(streams):
             t_k = int(steps[k])
             sizes = [bags * t_k * width for width in self.widths]
             words = stream.random_raw(sum((n + 3) // 4 for n in sizes)).view(np.int16)

@@ -4,6 +4,7 @@
     out = ens(x, lengths)     x: (B, T, d) shared by all members, or (K, B, T, d) a batch each;
                               lengths: (B,) or (K, B)
     out.returns (K, B)  out.rewards (K, B, T)  out.hidden (K, B, T, k)
+    ens(x, lengths, members=idx)   only members idx (K',): x (K', B, T, d) or (B, T, d), outputs (K', ...)
 
 Every member is exactly a `MILRewardModel` (`ens.member(m)` rebuilds it; tests check that the
 ensemble forward equals each member's own forward). Each parameter of the single model becomes one
@@ -64,6 +65,7 @@ class MILEnsemble(nn.Module):
         #: per-member dropout masks (`seed_dropout`); None: masks from torch's generator
         self.dropout_masks: MemberDropout | None = None
         self._step_masks = None  # this forward's masks, one per activation in order
+        self._computed = None  # this forward's members (None: all)
 
     # ----------------------------------------------------------------- members in and out
     @classmethod
@@ -125,9 +127,14 @@ class MILEnsemble(nn.Module):
         self.dropout_masks = MemberDropout(self.dropout, seeds, widths) if self.dropout > 0 else None
 
     # ----------------------------------------------------------------- forward
+    def _p(self, key: str) -> torch.Tensor:
+        """Parameter `key` (K, ...) of the members this forward computes."""
+        p = self.params[key]
+        return p if self._computed is None else p[self._computed]
+
     def _linear(self, z: torch.Tensor, prefix: str, name: str) -> torch.Tensor:
-        w = self.params[_key(f"{prefix}.{name}.weight")]  # (K, out, in)
-        b = self.params[_key(f"{prefix}.{name}.bias")]  # (K, out)
+        w = self._p(_key(f"{prefix}.{name}.weight"))  # (K, out, in)
+        b = self._p(_key(f"{prefix}.{name}.bias"))  # (K, out)
         return torch.baddbmm(b.unsqueeze(1), z, w.transpose(1, 2))
 
     def _activation(self, z: torch.Tensor) -> torch.Tensor:
@@ -138,7 +145,9 @@ class MILEnsemble(nn.Module):
 
     def _features(self, x: torch.Tensor) -> torch.Tensor:
         """(K, N, d) raw instances -> (K, N, F) features."""
-        z = (x - self.input_shift[:, None, :]) / self.input_scale[:, None, :]
+        shift, scale = ((self.input_shift, self.input_scale) if self._computed is None
+                        else (self.input_shift[self._computed], self.input_scale[self._computed]))
+        z = (x - shift[:, None, :]) / scale[:, None, :]
         for name in self._fe:
             z = self._activation(self._linear(z, "feature_extractor", name))
         return z
@@ -157,7 +166,8 @@ class MILEnsemble(nn.Module):
         K, B, T, F = f.shape
         k = self.hidden_size
         eye = torch.eye(K, dtype=f.dtype)
-        p = self.params
+        p = {key: self._p(key) for key in ("lstm__weight_ih_l0", "lstm__weight_hh_l0", "lstm__bias_ih_l0",
+                                           "lstm__bias_hh_l0", "h0", "c0")}
         # torch's gate-major layout [i | f | g | o], each gate block ordered by member then unit
         w_hh = torch.einsum("mghj,ml->gmhlj", p["lstm__weight_hh_l0"].view(K, 4, k, k), eye)
         b_hh = p["lstm__bias_hh_l0"].view(K, 4, k).transpose(0, 1).reshape(-1)
@@ -181,20 +191,22 @@ class MILEnsemble(nn.Module):
                                True, 1, 0.0, self.training, False, True)
         return out.view(B, T, K, k).permute(2, 0, 1, 3)
 
-    def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
-        K = self.members
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor, members: torch.Tensor | None = None) -> MILOutput:
+        """members: indices (K',) of the members to compute (None: all); the others cost nothing
+        (training leaves out the members that are done)."""
+        K = self.members if members is None else len(members)
         if x.dim() == 3:
             x = x.unsqueeze(0).expand(K, *x.shape)
         if lengths.dim() == 1:
             lengths = lengths.unsqueeze(0).expand(K, -1)
-        self._step_masks = None
+        self._step_masks, self._computed = None, members
         if self.training and self.dropout_masks is not None:
             # each member's own longest bag: its dropout masks cover only its own instances
-            self._step_masks = iter(self.dropout_masks.take(x.shape[1], member_steps(lengths)))
+            self._step_masks = iter(self.dropout_masks.take(x.shape[1], member_steps(lengths), members))
         try:
             return self._forward(x, lengths)
         finally:
-            self._step_masks = None  # a step's masks are valid for this forward only
+            self._step_masks = self._computed = None  # valid for this forward only
 
     def _forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
         """forward() of (K, B, T, d) instances and (K, B) lengths: features, [LSTM,] head, then

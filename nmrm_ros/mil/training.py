@@ -554,21 +554,27 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         if use_prefs:
             pair_order = _tiled([tr for tr, _ in pair_rows], generators, n_pairs)
         losses = torch.zeros(K)
+        # the members still training (plateau: a member whose factor is 0 is done; its weights no
+        # longer change, so its forward and backward are left out); None: all
+        computed = None if not plateau or bool(factors.all()) else torch.nonzero(factors > 0).flatten()
+        rows = slice(None) if computed is None else computed
         for step in range(steps_per_epoch):
             for group in optimiser.param_groups:
                 group["lr"] = cfg.lr_at(epoch - 1 + step / steps_per_epoch)
             member_loss = torch.zeros(K)
             if use_returns:
                 at = _positions(step, cfg.batch_size, n_train, steps_returns == steps_per_epoch)
-                x, lengths, returns = bags.batch(order[:, at], label_order[:, at])
-                member_loss = member_loss + return_loss(ens(x, lengths), returns, cfg)
+                x, lengths, returns = bags.batch(order[rows][:, at], label_order[rows][:, at])
+                member_loss = member_loss + _per_member(return_loss(ens(x, lengths, computed), returns, cfg),
+                                                        computed, K)
             if use_prefs:
-                pick = prefs[pair_order[:, _positions(step, cfg.batch_size, n_pairs, steps_prefs == steps_per_epoch)]]
+                pick = prefs[pair_order[rows][:, _positions(step, cfg.batch_size, n_pairs, steps_prefs == steps_per_epoch)]]
                 half = pick.shape[1]
                 x, lengths, _ = bags.batch(torch.cat([pick[..., 0], pick[..., 1]], dim=1).long())
-                out = ens(x, lengths)
+                out = ens(x, lengths, computed)
                 bt = preference_loss(out.returns[:, :half], out.returns[:, half:], pick[..., 2].float(), scale)
-                member_loss = member_loss + (cfg.preference_weight * bt + _l1(out, cfg) if use_returns else bt)
+                member_loss = member_loss + _per_member(
+                    cfg.preference_weight * bt + _l1(out, cfg) if use_returns else bt, computed, K)
             optimiser.zero_grad()
             member_loss.sum().backward()
             if cfg.grad_clip > 0:
@@ -620,6 +626,11 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
                        for m, b in enumerate(progress_epoch)]
     return EnsembleTrainResult(best_epoch.tolist(), best_mse.tolist(), still_improving, epoch,
                                time.perf_counter() - start, history)
+
+
+def _per_member(loss: torch.Tensor, computed: torch.Tensor | None, K: int) -> torch.Tensor:
+    """(K',) losses of the `computed` members -> (K,), 0 for the members left out."""
+    return loss if computed is None else loss.new_zeros(K).index_add(0, computed, loss)
 
 
 def scaled_step(optimiser: torch.optim.Optimizer, params: list, factors: torch.Tensor) -> None:
