@@ -53,7 +53,9 @@ def run_repeat(job: tuple) -> dict:
     ds = cached_dataset(task, 5000, r)
     held = cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(task, seed=r, **overrides)
-    t0 = time.process_time()  # weight seeds r + 1000 j (cfg.seed = r), split r; CPU time: as wall time on 1 thread
+    # weight seeds r + 1000 j (cfg.seed = r), split r; seconds: CPU time of fit (the training and its
+    # evaluation of each member, a few seconds; as wall time on 1 thread)
+    t0 = time.process_time()
     run = fit(ds, "csc_lstm", cfg, members=cfg.members, split_seed=r, offsets=[1000 * j for j in range(cfg.members)],
               progress=False)
     seconds = time.process_time() - t0

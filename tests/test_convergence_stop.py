@@ -99,8 +99,10 @@ def test_members_that_are_done_are_not_computed():
 
     ens.forward = counting
     result = train_ensemble(ens, ds, splits, cfg, seeds=[0, 1, 2], progress=False)
-    done = sorted(next(h["epoch"] for h in result.history if h["lr_factor"][m] == 0) for m in range(3))
+    done = sorted(next((h["epoch"] for h in result.history if h["lr_factor"][m] == 0), 10 ** 6) for m in range(3))
+    assert done[-1] <= result.epochs_run, done  # every member was done within the limit
     assert done[0] < done[-1] and min(computed) < 3  # members finished apart, and were left out
+    assert result.history[done[0]]["train_loss"].count(None) >= 1  # and have no training loss then
     steps = len(computed) // result.epochs_run
     assert computed[done[0] * steps] < 3  # from the epoch after the first one was done
     for m in range(3):

@@ -54,6 +54,27 @@ def test_ensemble_forward_equals_each_members_forward(arch, task, d, hidden_size
             assert torch.equal(a, b), name
 
 
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_a_forward_of_some_members_is_those_members_of_the_whole_forward(arch):
+    """ens(x, lengths, members=idx): the rows idx of the whole ensemble's outputs, exactly; in
+    training, the dropout masks of those members only (each from its own stream)."""
+    from nmrm_ros.mil.dropout import MemberDropout
+
+    ens = MILEnsemble.from_members(_members(arch, k=4)).eval()
+    rng = np.random.default_rng(0)
+    x = torch.as_tensor(rng.normal(size=(4, 5, 12, 2)).astype(np.float32))
+    lengths = torch.as_tensor(rng.integers(3, 13, size=(4, 5)))
+    whole = ens(x, lengths)
+    idx = torch.tensor([1, 3])
+    some = ens(x[idx], lengths[idx], idx)
+    for name in ("returns", "rewards", "hidden"):
+        assert torch.equal(getattr(some, name), getattr(whole, name)[idx]), name
+    every = MemberDropout(0.1, [0, 1, 2, 3], [4, 3]).take(5, [12, 12, 12, 12])
+    picked = MemberDropout(0.1, [0, 1, 2, 3], [4, 3]).take(5, [12, 12], idx)
+    for a, b in zip(every, picked):
+        assert torch.equal(a[idx], b)
+
+
 def test_ensemble_training_is_each_member_trained_alone():
     """Two members trained in one pass (dropout 0) end where each one's own run ends."""
     ds = make_toy_dataset("push_switch", 300, seed=0)

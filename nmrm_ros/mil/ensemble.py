@@ -200,10 +200,10 @@ class MILEnsemble(nn.Module):
         if lengths.dim() == 1:
             lengths = lengths.unsqueeze(0).expand(K, -1)
         self._step_masks, self._computed = None, members
-        if self.training and self.dropout_masks is not None:
-            # each member's own longest bag: its dropout masks cover only its own instances
-            self._step_masks = iter(self.dropout_masks.take(x.shape[1], member_steps(lengths), members))
         try:
+            if self.training and self.dropout_masks is not None:
+                # each member's own longest bag: its dropout masks cover only its own instances
+                self._step_masks = iter(self.dropout_masks.take(x.shape[1], member_steps(lengths), members))
             return self._forward(x, lengths)
         finally:
             self._step_masks = self._computed = None  # valid for this forward only

@@ -186,7 +186,7 @@ class TrainResult:
     epochs_run: int
     seconds: float
     still_improving: bool = False
-    history: list = field(default_factory=list)  # per epoch: {"epoch", "train_loss", "val_loss", "val_return_mse" and/or "val_preference_loss", "lr"}
+    history: list = field(default_factory=list)  # per epoch: {"epoch", "train_loss" (None: a member done), "val_loss", "val_return_mse" and/or "val_preference_loss", "lr"}
 
 
 @dataclass
@@ -584,7 +584,10 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             else:
                 optimiser.step()
             losses += member_loss.detach()
-        entry = {"epoch": epoch, "train_loss": (losses / steps_per_epoch).tolist()}
+        train_loss = (losses / steps_per_epoch).tolist()
+        if computed is not None:  # a member left out this epoch has no training loss
+            train_loss = [v if m in set(computed.tolist()) else None for m, v in enumerate(train_loss)]
+        entry = {"epoch": epoch, "train_loss": train_loss}
         val_loss = np.zeros(K)
         if use_returns:
             val_mse = return_mse(ens, bags, index=val_idx, label_index=val_labels)

@@ -182,7 +182,7 @@ def round_pairs(n_old: int, n_new: int, count: int, rng: np.random.Generator) ->
 def check_loop_arguments(rounds: int, labels_per_round: int, episodes: int | None,
                          feedback: str = "returns") -> None:
     """ValueError (one line) for a loop that cannot run."""
-    from ..mil.training import FEEDBACK  # the kinds of feedback training knows
+    from ..feedback import FEEDBACK  # the kinds of feedback training knows
 
     if feedback not in FEEDBACK:
         raise ValueError(f"feedback must be one of {', '.join(FEEDBACK)}, got {feedback!r}")
