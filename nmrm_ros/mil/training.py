@@ -586,7 +586,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             losses += member_loss.detach()
         train_loss = (losses / steps_per_epoch).tolist()
         if computed is not None:  # a member left out this epoch has no training loss
-            train_loss = [v if m in set(computed.tolist()) else None for m, v in enumerate(train_loss)]
+            kept = set(computed.tolist())
+            train_loss = [v if m in kept else None for m, v in enumerate(train_loss)]
         entry = {"epoch": epoch, "train_loss": train_loss}
         val_loss = np.zeros(K)
         if use_returns:
