@@ -10,6 +10,7 @@ from pathlib import Path
 
 from nmrm_ros.testing.graph import executable, finish, start
 from nmrm_ros.bags import bag_summary, load_bag_dataset
+from nmrm_ros.bags.reader import iter_decoded
 
 REPO = Path(__file__).resolve().parents[1]
 GRAPH = REPO / "launch_scripts" / "graph.launch.yaml"
@@ -34,6 +35,18 @@ def _wait_for_line(proc: subprocess.Popen, text: str, timeout: float = 60.0) -> 
             return "".join(seen)
         assert time.monotonic() < deadline, "".join(seen)
     raise AssertionError("".join(seen))
+
+
+def _why(bag, ns: str, summary: dict, outs: list, rec_out: str) -> str:
+    """What a failed count needs to be explained: the observations recorded per episode (first and
+    last step, count) and every process's log."""
+    steps: dict = {}
+    for _, _, _, msg in iter_decoded(bag, [f"{ns}/nmrm/observation"]):
+        steps.setdefault(msg.episode, []).append(msg.step)
+    per_episode = {e: (min(s), max(s), len(s)) for e, s in sorted(steps.items())}
+    return (f"{ns}: observations per episode (first step, last step, count) {per_episode}\n"
+            f"summary {summary}\n" + "\n".join(f"--- robot{i + 1}\n{o}" for i, o in enumerate(outs))
+            + f"\n--- recorder\n{rec_out}")
 
 
 def test_two_namespaced_graphs_one_recorder_and_training(ros_domain, tmp_path):
@@ -61,12 +74,12 @@ def _run(robots, tmp_path):
         outs.append(head + out)
         assert code == 0, head + out
         assert f"done: {EPISODES} episodes" in out, head + out
-    code, out = finish(rec, 60)
-    assert code == 0, out
+    code, rec_out = finish(rec, 60)
+    assert code == 0, rec_out
     summary = bag_summary(bag)
     for ns in ("/robot1", "/robot2"):
-        assert summary[f"{ns}/nmrm/observation"][1] == EPISODES * 101, summary
-        assert summary[f"{ns}/nmrm/trajectory_return"][1] == EPISODES, summary
+        counts = (summary[f"{ns}/nmrm/observation"][1], summary[f"{ns}/nmrm/trajectory_return"][1])
+        assert counts == (EPISODES * 101, EPISODES), _why(bag, ns, summary, outs, rec_out)
     ds, report = load_bag_dataset([bag])
     assert len(ds) == 2 * EPISODES and report.episodes_used == 2 * EPISODES, report
     assert sorted(zip(ds.meta["sources"], ds.meta["episodes"])) == \

@@ -301,13 +301,18 @@ def exit_with_upstream(node, subscriptions, period: float = 0.2, on_gone=None) -
     and went between two checks still counts as seen if the node's `messages_received` > 0.
     """
     subs = subscriptions if isinstance(subscriptions, (list, tuple)) else [subscriptions]
-    state = {"seen": False}
+    state = {"seen": False, "quiet_since": None}
 
     def check() -> None:
         count = sum(s.get_publisher_count() for s in subs)
         if count > 0 or node.messages_received > 0:
             state["seen"] = True
-        if state["seen"] and count == 0 and node.exit_code is None and not state.get("gone"):
+        # Messages a lagging node has received but not yet read are still there once their
+        # publishers are gone (and the executor runs this timer before them): so the node leaves
+        # only after a whole period without publishers in which it read nothing more.
+        quiet = count == 0 and state["quiet_since"] == node.messages_received
+        state["quiet_since"] = node.messages_received if count == 0 else None
+        if state["seen"] and quiet and node.exit_code is None and not state.get("gone"):
             state["gone"] = True
             if on_gone is not None:
                 on_gone()
