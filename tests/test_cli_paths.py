@@ -57,6 +57,7 @@ CASES = {
     (("labels", "export"), "--out"): (OUT, "labels export --checkpoint {C} --out {P}"),
     (("labels", "import"), "--file"): (IN, "labels import --file {P} --out {T}/b"),
     (("labels", "import"), "--out"): (OUT, "labels import --file {L} --out {P}"),
+    (("tls", "cert"), "--out"): (OUT, "tls cert --host lab-pc --out {P}"),
 }
 BAD_INPUTS = ("missing", "text file", "empty directory")
 BAD_OUTPUTS = ("under a file", "not creatable")

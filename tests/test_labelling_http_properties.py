@@ -16,7 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from nmrm_ros.labelling.queue import LabelQueue
-from nmrm_ros.labelling.web_app import WebServer, make_app
+from nmrm_ros.labelling.web_app import make_app
+from nmrm_ros.web_server import WebServer
 
 TOKEN = "t" * 32
 EPISODES = (3, 4)

@@ -23,6 +23,7 @@ from . import model  # noqa: E402,F401
 from . import discovery  # noqa: E402,F401
 from . import agents  # noqa: E402,F401
 from . import loop  # noqa: E402,F401
+from . import tls  # noqa: E402,F401
 
 __all__ = ["app", "main"]
 

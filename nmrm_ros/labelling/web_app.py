@@ -3,7 +3,8 @@
 Routes (JSON unless said; every one behind the access token when there is one):
   GET  /                      the page (static/page.html, page.js, page.css)
   GET  /api/info              task, labeller, return range ([null, null]: any number), the arena's
-                              zones (null: a task of the user's), how the queue is ordered
+                              zones (null: a task of the user's), how the queue is ordered, and
+                              what to judge (`info`: the instruction, the zones' legend)
   GET  /api/queue             finished unlabelled episodes, in the order they are asked
   GET  /api/episode/{n}       one episode's states (L + 1, state size), the steps that have a
                               rendered frame, and its label if any
@@ -26,7 +27,8 @@ open is not offered to the others; "overlap" asks everyone about everything (for
 Safety (Jupyter's defaults are the bar): the `Host` header must name this server (`allowed_hosts`;
 a DNS-rebinding page's host is refused, 403); the token (if any) must come with every request, as
 the `X-Token` header, or for a GET as a `token` query parameter or the cookie a GET / with the
-right token sets (HttpOnly, SameSite=Strict: never sent by another site's page), compared in
+right token sets (HttpOnly, SameSite=Strict: never sent by another site's page; Secure under
+TLS), compared in
 constant time (401); a POST must be `application/json` (415: a cross-site form or no-cors fetch
 cannot send that without a CORS preflight, which is never granted) and, if it says where it
 comes from, from this server's own origin (403); bodies over `max_body` bytes are refused (413);
@@ -37,11 +39,8 @@ and the page writes every value with textContent, never as HTML.
 
 from __future__ import annotations
 
-import asyncio
-import errno
 import hmac
 import json
-import threading
 from importlib import resources
 from typing import Callable
 
@@ -111,7 +110,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
             if request.content_type != "application/json":
                 return _error(415, "a request that changes anything must be application/json")
             origin = request.headers.get("Origin")
-            if origin is not None and origin.lower() != f"http://{host}":
+            if origin is not None and origin.lower() != f"{request.scheme}://{host}":
                 return _error(403, f"cross-origin request from {origin!r} refused")
         return None
 
@@ -134,7 +133,8 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         response.headers["Cache-Control"] = "no-store"
         given = request.query.get("token", "")
         if tokens and request.path == "/" and _valid(given):
-            response.set_cookie(TOKEN_COOKIE, given, httponly=True, samesite="Strict", path="/")
+            response.set_cookie(TOKEN_COOKIE, given, httponly=True, samesite="Strict", path="/",
+                                secure=request.secure)  # under TLS: never sent over plain HTTP
         return response
 
     async def static(request: web.Request) -> web.Response:
@@ -281,37 +281,3 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
                     web.get("/api/pairs", api_pairs), web.post("/api/compare", api_compare),
                     web.post("/api/cant_tell", api_cant_tell), web.get("/api/comparisons", api_comparisons)])
     return app
-
-
-class WebServer:
-    """Serves `app` on (host, port) from a thread with its own event loop. `start()` returns once
-    the socket is bound (`port` then holds the real port, e.g. after port 0); `stop()` closes it."""
-
-    def __init__(self, app: web.Application, host: str = "127.0.0.1", port: int = 8080) -> None:
-        self.app, self.host, self.port = app, host, port
-        self.loop = asyncio.new_event_loop()
-        self.runner: web.AppRunner | None = None
-        self.thread = threading.Thread(target=self.loop.run_forever, name="labeller-web", daemon=True)
-
-    def start(self, timeout: float = 10.0) -> None:
-        """Bind and serve; OSError if it cannot (a port outside 0-65535 included: the socket
-        layer raises OverflowError for that, which the nodes' one-line errors would miss)."""
-        if not 0 <= int(self.port) <= 65535:
-            raise OSError(errno.EINVAL, f"port {self.port} is not one of 0-65535")
-        self.thread.start()
-        asyncio.run_coroutine_threadsafe(self._start(), self.loop).result(timeout)
-
-    async def _start(self) -> None:
-        self.runner = web.AppRunner(self.app, access_log=None)
-        await self.runner.setup()
-        site = web.TCPSite(self.runner, self.host, self.port)
-        await site.start()
-        self.port = site._server.sockets[0].getsockname()[1]
-
-    def stop(self, timeout: float = 5.0) -> None:
-        if self.runner is not None and self.thread.is_alive():
-            try:
-                asyncio.run_coroutine_threadsafe(self.runner.cleanup(), self.loop).result(timeout)
-            finally:
-                self.loop.call_soon_threadsafe(self.loop.stop)
-                self.thread.join(timeout)

@@ -7,7 +7,9 @@ that connects later) and serves them with the Foxglove WebSocket protocol on `ho
 URL, a browser's Origin must be one of `allowed_origins`). At start it prints the URL with the token
 and the link that opens it in the Foxglove web app; config/foxglove/nmrm_layout.json is the layout
 (3D view of the arena, pose and path; plots of the served reward, its std and the hidden state;
-the diagnostics). The token is `token`, else one generated per start. Read-only.
+the diagnostics). The token is `token`, else one generated per start. Read-only. With `certfile`
+and `keyfile` it serves WSS only; beyond loopback without them it does not start unless
+`trusted_network` (nmrm_ros.tls).
 
     ros2 run nmrm_ros foxglove_server            # beside any graph; or robot_bridge.launch.yaml foxglove:=true
 """
@@ -23,9 +25,9 @@ from ..ros.diagnostics import TOPIC as DIAGNOSTICS
 from ..ros.field_paths import message_class
 from ..ros.msg_schema import ros2msg_schema
 from ..ros.node_base import NmrmNode
-from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param
+from ..ros.node_main import EXIT_WITH_UPSTREAM, SERVER_TLS, Param, start_server
+from ..web_server import ANY_ADDRESS
 
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
 DEFAULT_TOPICS = ["/nmrm/viz/arena", "/nmrm/viz/pose", "/nmrm/viz/path", "/nmrm/viz/reward",
                   "/nmrm/viz/reward_std", "/nmrm/viz/hidden", "/diagnostics", "/nmrm/reward_step",
                   "/nmrm/trajectory_return"]
@@ -39,6 +41,7 @@ PARAMETERS = {
                                                            "Origin, e.g. the desktop app, needs the token only)"),
     "topics": Param(DEFAULT_TOPICS, "topics to serve, subscribed once they appear in the graph"),
     "discovery_period": Param(1.0, "seconds between looks for new topics", 0.05),
+    **SERVER_TLS,
 }
 
 
@@ -60,7 +63,6 @@ class FoxgloveServerNode(NmrmNode):
     PARAMETERS = PARAMETERS
 
     def __init__(self) -> None:
-        from ..labelling.web_app import WebServer
         from ..viewer.foxglove_server import FoxgloveServer
 
         self.messages_received = 0  # of the upstream topics (exit_with_upstream), /diagnostics not counted
@@ -72,19 +74,14 @@ class FoxgloveServerNode(NmrmNode):
         self.subs: list = []  # the subscriptions, as topics appear
         self.skipped: set = set()
         host = str(p["host"])
-        allowed_hosts: set | None = None if host in ("0.0.0.0", "::") else set()
+        allowed_hosts: set | None = None if host in ANY_ADDRESS else set()
         self.server = FoxgloveServer(p["token"] or secrets.token_urlsafe(24), tuple(p["allowed_origins"]),
                                      allowed_hosts)
-        self.web = WebServer(self.server.app, host, int(p["port"]))
-        try:
-            self.web.start()
-        except OSError as exc:
-            raise NodeError(f"cannot serve on {host}:{p['port']}: {exc.strerror or exc}") from None
+        self.web = start_server(self.server.app, p)
         self.server.attach(self.web.loop)
         if allowed_hosts is not None:  # the Host a client sends for this address and port
-            names = LOOPBACK if host in LOOPBACK else (host,)
-            allowed_hosts.update((f"[{n}]" if ":" in n else n).lower() + f":{self.web.port}" for n in names)
-        url = f"ws://{host}:{self.web.port}/?token={self.server.token}"
+            allowed_hosts.update(self.web.allowed_hosts())
+        url = self.web.url("/").replace("http", "ws", 1) + f"?token={self.server.token}"
         self.get_logger().info(f"Foxglove: {url}  (open in the web app: https://app.foxglove.dev/?ds=foxglove-websocket"
                                f"&ds.url={quote(url, safe='')}; layout config/foxglove/nmrm_layout.json)")
         self.create_timer(float(p["discovery_period"]), self.discover)

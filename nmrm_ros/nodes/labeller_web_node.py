@@ -32,6 +32,10 @@ N-th episode is a gold episode, asked of everyone, whose true return the oracle 
 `oracle`) knows: each person's error on them is shown, and the true returns are written to a
 `gold_oracle_*` bag in `labels_dir` (not published), so `nmrm labels report` can check people later.
 
+The page shows what to judge: the task's instruction (our tasks' from the paper; a task module's
+`INSTRUCTION`; or the text file `instruction`), a legend of what is drawn, the keyboard shortcuts and
+how many labels the person has given and how many wait.
+
 Comparisons: with `feedback` preferences (or both), the page shows two episodes side by side,
 played together, and asks which is better: left / right / equal / can't tell (keys ←, →, =, s).
 Pairs come from the oldest episodes that still need comparisons (`comparisons_per_episode`), or,
@@ -44,7 +48,9 @@ Safety (as Jupyter's): binds 127.0.0.1 unless `host` says otherwise; every reque
 access token (`token`, or one generated and printed in the URL at start; `require_token:=false`
 drops it on 127.0.0.1 only), the Host header must name this server, and a request that changes
 anything must be JSON from the page's own origin (nmrm_ros.labelling.web_app); bodies over 4 KiB
-are refused.
+are refused. With `certfile` and `keyfile` the page is served over HTTPS only (the token cookie is
+then Secure); beyond loopback without them the node does not start unless `trusted_network`
+(nmrm_ros.tls). Tokens are logged only in the URLs printed at start, one per person.
 """
 
 from __future__ import annotations
@@ -61,11 +67,10 @@ from sensor_msgs.msg import CompressedImage
 from ..feedback import unknown_feedback
 from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_base import NmrmNode
-from ..ros.node_main import (NodeError, Param, live_parameter,
-                             require_task)
+from ..ros.node_main import SERVER_TLS, NodeError, Param, live_parameter, require_task, start_server
+from ..tls import LOOPBACK
+from ..web_server import ANY_ADDRESS
 from ..ros.topics import FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
-
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 PARAMETERS = {
     "task": Param("key", "task of the episodes to label"),
@@ -89,7 +94,28 @@ PARAMETERS = {
     "pair_window": Param(30, "feedback preferences|both: pairs are chosen among this many oldest episodes "
                              "that need comparisons", 2),
     "frames_mb": Param(200, "rendered frames (nmrm/frame) kept for the page, in MB (oldest episodes' dropped)", 1),
+    "instruction": Param("", "a UTF-8 text file of what people judge, shown on the page ('' = the task's own words)"),
+    **SERVER_TLS,
 }
+
+MAX_INSTRUCTION = 4000  # characters of an instruction file
+
+
+def read_instruction(path: str) -> str:
+    """The text of an instruction file (whitespace folded); NodeError if it is not a readable
+    UTF-8 text file of 1 to MAX_INSTRUCTION characters."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except IsADirectoryError:
+        raise NodeError(f"instruction {path}: a directory, not a text file") from None
+    except UnicodeDecodeError:
+        raise NodeError(f"instruction {path}: not UTF-8 text") from None
+    except OSError as exc:
+        raise NodeError(f"instruction {path}: {exc.strerror or exc}") from None
+    text = " ".join(text.split())
+    if not text or len(text) > MAX_INSTRUCTION:
+        raise NodeError(f"instruction {path}: {len(text)} characters; give 1 to {MAX_INSTRUCTION}")
+    return text
 
 
 class LabellerWebNode(NmrmNode):
@@ -100,10 +126,11 @@ class LabellerWebNode(NmrmNode):
         self.messages_received = 0
         super().__init__()
         p = self.params
-        from ..labelling import FrameStore, LabelQueue, LabelStore, WaitingEpisodes, WebServer, make_app
+        from ..labelling import FrameStore, LabelQueue, LabelStore, WaitingEpisodes, make_app
         from ..labelling.label_store import WAITING_DIR
 
         self.info = require_task(p["task"])
+        instruction = read_instruction(p["instruction"]) if p["instruction"] else self.info.instruction
         self.task = p["task"]
         team = [str(x).strip() for x in p["people"] if str(x).strip()]
         people = team or [str(p["person"]).strip()]
@@ -161,25 +188,24 @@ class LabellerWebNode(NmrmNode):
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
         self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
-        allowed_hosts: set | None = None if p["host"] in ("0.0.0.0", "::") else set()
-        app = make_app(self.queue, self.on_label, {}, tokens=tokens or None, frames=self.frames,
+        allowed_hosts = None if p["host"] in ANY_ADDRESS else set()  # filled once the port is bound
+        words = {"instruction": instruction, "legend": [list(pair) for pair in self.info.legend]}
+        app = make_app(self.queue, self.on_label, words, tokens=tokens or None, frames=self.frames,
                        allowed_hosts=allowed_hosts, team=self._gold_report, on_compare=self.on_compare,
                        feedback=self.feedback)
-        self.server = WebServer(app, p["host"], int(p["port"]))
         try:
-            self.server.start()
-        except OSError as exc:
+            self.server = start_server(app, p)
+        except NodeError:
             for store in [*self.stores.values(), *([self.gold_store] if self.gold_store else [])]:
                 store.close()  # no label yet: no bag left
             if created_labels_dir:
                 for empty in (labels_dir / WAITING_DIR, labels_dir):
                     if empty.is_dir() and not any(empty.iterdir()):
                         empty.rmdir()
-            raise NodeError(f"cannot serve on {p['host']}:{p['port']}: {exc.strerror or exc}") from None
+            raise
         if allowed_hosts is not None:  # the Host a browser sends for this address and port
-            names = LOOPBACK if p["host"] in LOOPBACK else (p["host"],)
-            allowed_hosts.update((f"[{n}]" if ":" in n else n).lower() + f":{self.server.port}" for n in names)
-        base = f"http://{p['host']}:{self.server.port}/"
+            allowed_hosts.update(self.server.allowed_hosts())
+        base = self.server.url()
         by_person = {person: tok for tok, person in (tokens or {}).items()}
         for person in people:
             url = base + (f"?token={by_person[person]}" if person in by_person else "")

@@ -30,7 +30,14 @@ START = (1.0, 1.0)               # episodes start here, heading drawn at random
 #: what the labelling page and the visualizer draw: the box, and the zones as squares round their circles
 ARENA = {"bounds": [0.0, SIZE, 0.0, SIZE],
          "zones": [[c[0] - c[2], c[0] + c[2], c[1] - c[2], c[1] + c[2], kind] for c, kind in
-                   (((1.0, 1.0, 0.1), "spawn"), (PICKUP, "pickup"), (GOAL, "goal"))]}
+                   (((1.0, 1.0, 0.1), "spawn"), (PICKUP, "pickup"), (GOAL, "goal"))],
+         "legend": {"spawn": "where the robot starts", "pickup": "pickup: visit it first",
+                    "goal": "goal: +1 a step once the pickup was visited"}}
+#: what a person labelling an episode judges (the labelling page shows it)
+INSTRUCTION = ("The robot (its path in red, from the start marked o) drives in a 2 m x 2 m box for 200 steps. "
+               "It must first visit the blue pickup zone, then go to the yellow goal zone: each step in the goal "
+               "after the pickup was visited earns +1; the goal pays nothing before that. The return: the steps "
+               "in the goal after the pickup (0 to 200).")
 MAX_STEPS = 200                  # steps per episode (the task spec's max_steps, the robot spec's max_steps)
 TASK = f"nmrm_ros.robots.delivery:DeliveryEnv,max_steps={MAX_STEPS},xy=0/1"  # the task spec
 

@@ -291,6 +291,31 @@ def _executor():
 EXIT_WITH_UPSTREAM = Param(False, "exit (code 0) once the input topic had publishers and has none "
                                   "left, e.g. when env_sim finished its episodes (set in launch files)")
 
+#: the parameters of a node that serves people (labeller_web, foxglove_server): TLS beyond loopback
+SERVER_TLS = {
+    "certfile": Param("", "PEM certificate (chain): serve over TLS only, HTTPS / WSS ('' = plain, loopback only; "
+                          "`nmrm tls cert` makes a self-signed pair)"),
+    "keyfile": Param("", "PEM private key of certfile"),
+    "trusted_network": Param(False, "serve beyond loopback without TLS (every request then carries a token in "
+                                    "clear text: only on a network that is yours alone)"),
+}
+
+
+def start_server(app, params: dict):
+    """Serve `app` on params' host and port (over TLS with certfile / keyfile: `web_server.serve`);
+    NodeError (one line) for a certificate that cannot be served, an address beyond loopback
+    without TLS or trust, or a port that cannot be bound."""
+    from ..tls import TLSError
+    from ..web_server import serve
+
+    try:
+        return serve(app, str(params["host"]), int(params["port"]), str(params["certfile"]),
+                     str(params["keyfile"]), bool(params["trusted_network"]))
+    except TLSError as exc:
+        raise NodeError(str(exc)) from None
+    except OSError as exc:
+        raise NodeError(f"cannot serve on {params['host']}:{params['port']}: {exc.strerror or exc}") from None
+
 
 def exit_with_upstream(node, subscriptions, period: float = 0.2, on_gone=None) -> None:
     """Make `node` end (exit_code 0) when its subscription(s) had publishers and have none left

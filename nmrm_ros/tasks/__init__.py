@@ -37,10 +37,31 @@ def _spec_info(task: str) -> TaskInfo:
     try:
         act = env.action_space
         discrete = isinstance(act, gym.spaces.Discrete)
+        instruction, legend = _module_words(task)
         return TaskInfo(task, int(env.observation_space.shape[0]), discrete,
-                        int(act.n) if discrete else int(act.shape[0]), env.episode_length, renders=True)
+                        int(act.n) if discrete else int(act.shape[0]), env.episode_length, renders=True,
+                        instruction=instruction, legend=legend)
     finally:
         env.close()
+
+
+def _module_words(task: str) -> tuple:
+    """(instruction, legend) a user's task module gives: its `INSTRUCTION` text (what a person
+    judges) and the `legend` of its `ARENA` ({zone kind: meaning}); ("", ()) where it gives none."""
+    import importlib
+
+    from .gym_task import parse_task_spec
+
+    spec = parse_task_spec(task)
+    if spec.kind != "import":
+        return "", ()
+    module = importlib.import_module(spec.target.split(":")[0])
+    instruction = getattr(module, "INSTRUCTION", "")
+    legend = (getattr(module, "ARENA", None) or {}).get("legend", {})
+    if not isinstance(instruction, str) or not isinstance(legend, dict):
+        raise TaskSpecError(f"{spec.target.split(':')[0]}: INSTRUCTION must be a str and ARENA['legend'] a dict "
+                            f"of zone kind -> meaning")
+    return " ".join(instruction.split()), tuple((str(k), str(v)) for k, v in legend.items())
 
 
 def task_info(task: str) -> TaskInfo:

@@ -6,8 +6,8 @@ environment); the rest of the package asks `task_info(task)` (`nmrm_ros.tasks`) 
 its fields, never on a task's name. Fields: the state layout and actions, the reward models'
 layer-size family, the returns a person may label, the 2D map (arena) the views draw, how a
 screened dataset is built (and the class rule of a class-screened task), whether the env renders
-frames, whether it is one of the navigation tasks (continuous variant, the demo), and the zones
-the views draw on its map.
+frames, whether it is one of the navigation tasks (continuous variant, the demo), the zones
+the views draw on its map, and what a person labelling it is asked to judge.
 """
 
 from __future__ import annotations
@@ -68,7 +68,9 @@ class TaskInfo:
     task screened by class (None otherwise); renders: the env draws RGB frames; navigation: one of
     the 2D navigation tasks (a continuous-action variant, `nmrm demo`); map_states: the state at
     each map point (N, 2) -> (N, d) when d > 2 (`states_at`), and what the views say of it (map_note);
-    map_name: what the map is called in a figure's title; zones: the `MapZone`s drawn on it."""
+    map_name: what the map is called in a figure's title; zones: the `MapZone`s drawn on it;
+    instruction: what a person judges, in words (the labelling page shows it; "" = none written);
+    legend: (zone kind, what it means) pairs for the zones the page draws (`arena.arena`)."""
 
     name: str
     state_size: int
@@ -87,6 +89,8 @@ class TaskInfo:
     map_note: str = ""
     map_name: str = "arena"
     zones: tuple = ()
+    instruction: str = ""
+    legend: tuple = ()
 
     def states_at(self, points):
         """The states the views draw at 2D map points (N, 2) -> (N, state_size) (`map_states`;

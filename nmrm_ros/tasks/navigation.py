@@ -156,6 +156,33 @@ class NavigationEnv(gym.Env):
 RETURN_RANGES = {"timer": (-50.0, 50.0), "moving": (0.0, 100.0), "key": (0.0, 100.0), "charger": (0.0, 100.0)}
 
 
+#: what a person judges (the labelling page), from the paper's task descriptions (App. D.1)
+_ROOM = ("The agent (the red dot; its path in red, from the start marked o) moves in a square room for "
+         "100 steps, starting in one of the grey spawn zones. ")
+INSTRUCTIONS = {
+    "timer": _ROOM + "Each step it spends in the yellow treasure zone counts -1 during the first 50 steps "
+                     "(t <= 50) and +1 after them. The return: the steps in the treasure after step 50 minus "
+                     "the steps in it up to step 50 (from -50 to 50).",
+    "moving": _ROOM + "The treasure is a box 0.2 wide that slides left and right along the yellow row at a "
+                      "constant speed (0.02 a step, starting at x 0.4-0.6 and moving left, turning at the "
+                      "walls); it is not drawn. Each step the agent is inside the moving treasure earns +1. "
+                      "The return: the number of those steps (0 to 100).",
+    "key": _ROOM + "The yellow treasure zone pays +1 for each step the agent spends in it, but only once the "
+                   "agent has been in the blue key zone earlier in the episode; before that it pays 0. The "
+                   "return: the steps in the treasure after the key was collected (0 to 100).",
+    "charger": _ROOM + "Each step in the green charger strip (the bottom of the room) adds 0.02 to the agent's "
+                       "charge, up to 1 (after 50 steps there). Each step in the yellow treasure zone earns the "
+                       "charge it has then. The return: the sum of the charge over the steps spent in the "
+                       "treasure (0 to 100).",
+}
+LEGEND = {"timer": (("spawn", "where the agent starts"), ("treasure", "treasure: -1 a step up to step 50, +1 after")),
+          "moving": (("spawn", "where the agent starts"), ("treasure row", "the row the (unseen) treasure slides along")),
+          "key": (("spawn", "where the agent starts"), ("key", "key: visit it first"),
+                  ("treasure", "treasure: +1 a step once the key is collected")),
+          "charger": (("spawn", "where the agent starts"), ("charger", "charger: +0.02 charge a step, up to 1"),
+                      ("treasure", "treasure: pays the charge, each step"))}
+
+
 def navigation_task_info(task: str):
     """The TaskInfo of navigation task `task` (timer | moving | key | charger)."""
     from functools import partial
@@ -165,7 +192,7 @@ def navigation_task_info(task: str):
     return TaskInfo(task, 2, True, N_ACTIONS, EPISODE_LENGTH, family="navigation",
                     return_range=RETURN_RANGES[task], arena=(0.0, 1.0, 0.0, 1.0), screening="classes",
                     screening_classes=partial(screening_classes, task), classify=partial(classify, task),
-                    navigation=True, zones=map_zones(task))
+                    navigation=True, zones=map_zones(task), instruction=INSTRUCTIONS[task], legend=LEGEND[task])
 
 
 def map_zones(task: str) -> tuple:

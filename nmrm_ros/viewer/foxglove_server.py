@@ -13,7 +13,7 @@ A refused handshake gets 401/403 with one line and nothing else. Read-only: clie
 and unsubscribe, nothing more (no client publishing, services or parameters).
 
     server = FoxgloveServer(token="...")
-    web = WebServer(server.app, "127.0.0.1", 8765); web.start(); server.attach(web.loop)
+    web = serve(server.app, "127.0.0.1", 8765); server.attach(web.loop)   # nmrm_ros.web_server
     cid = server.add_channel("/nmrm/viz/pose", "geometry_msgs/msg/PoseStamped", schema_text)
     server.publish(cid, stamp_ns, cdr_bytes)        # from any thread
 """

@@ -102,6 +102,10 @@ function drawPath(svg, ep, at) {
   path.setAttribute("class", "path");
   path.setAttribute("points", shown.map((s) => toView(ep, s[ix], s[iy]).join(",")).join(" "));
   svg.appendChild(path);
+  const [sx, sy] = toView(ep, ep.states[0][ix], ep.states[0][iy]);
+  const start = document.createElementNS(SVG, "circle");
+  start.setAttribute("class", "start"); start.setAttribute("cx", sx); start.setAttribute("cy", sy); start.setAttribute("r", 2.2);
+  svg.appendChild(start);
   const [cx, cy] = toView(ep, shown[shown.length - 1][ix], shown[shown.length - 1][iy]);
   const dot = document.createElementNS(SVG, "circle");
   dot.setAttribute("class", "agent"); dot.setAttribute("cx", cx); dot.setAttribute("cy", cy); dot.setAttribute("r", 1.5);
@@ -154,6 +158,8 @@ async function refresh(openFirst) {
     list.appendChild(li);
   }
   document.getElementById("count").textContent = `(${queue.episodes.length})`;
+  counts.returns = `${labels.labels.length} return(s) given, ${queue.episodes.length} episode(s) wait`;
+  showCounts();
   const body = document.getElementById("history");
   body.replaceChildren();
   for (const l of labels.labels) {
@@ -206,8 +212,50 @@ async function skip() {
   catch (e) { showError(e); }
 }
 
+// What a person judges: the task's instruction, a legend of what is drawn, the keyboard shortcuts.
+const counts = {returns: "", comparisons: ""};
+function showCounts() {
+  document.getElementById("counts").textContent = ["returns", "comparisons"].map((k) => counts[k]).filter((t) => t).join(" · ");
+}
+
+function legendItem(swatchClass, text) {
+  const li = el("li"), sw = el("span");
+  sw.className = "swatch " + swatchClass;
+  li.append(sw, document.createTextNode(text));
+  return li;
+}
+
+function showTask() {
+  document.getElementById("instruction").textContent = info.instruction ||
+    "No instruction was written for this task: ask whoever started this page what a good episode is " +
+    "(they can give one: labeller_web instruction:=FILE, or INSTRUCTION in the task's module).";
+  const legend = document.getElementById("legend");
+  legend.replaceChildren();
+  const meaning = Object.fromEntries(info.legend || []);
+  if (info.arena) {
+    const kinds = [...new Set(info.arena.zones.map((z) => z[4]))];
+    for (const kind of kinds) legend.appendChild(legendItem("zone-swatch zone-" + kind.replace(/[^a-z]+/g, "-"), meaning[kind] || kind));
+    legend.append(legendItem("start-swatch", "where the episode starts"), legendItem("path-swatch", "the path so far"),
+                  legendItem("agent-swatch", "where it is at the step shown"));
+  }
+  if (info.task.includes(":")) {
+    legend.appendChild(legendItem("path-swatch", "plots: each state dimension over time, scaled to its range in the episode; the red line is the step shown"));
+  }
+  const keys = [];
+  if (info.feedback !== "preferences") keys.push("Enter: give the return typed", "Space: play / pause");
+  if (info.feedback !== "returns") keys.push("←: left is better", "→: right is better", "=: equal", "s: can't tell");
+  document.getElementById("shortcuts").textContent = "Keys — " + keys.join(" · ");
+  document.addEventListener("keydown", (ev) => {
+    if (ev.key !== " " || ev.target.tagName === "INPUT" || ev.target.tagName === "BUTTON") return;
+    ev.preventDefault();
+    if (info.feedback === "preferences") { if (pairTimer) stopPair(); else playPair(); }
+    else if (timer) stop(); else play();
+  });
+}
+
 async function main() {
   info = await api("/api/info");
+  showTask();
   document.getElementById("who").textContent = `${info.labeller} · task ${info.task}`;
   document.getElementById("ordering").textContent = `ordered: ${info.ordering}`;
   if (info.team.length > 1) {
@@ -300,6 +348,8 @@ async function openPair(a, b, why) {
 async function refreshPairs(openFirst) {
   const [pairs, done] = await Promise.all([api("/api/pairs"), api("/api/comparisons")]);
   document.getElementById("pair-count").textContent = `(${pairs.pairs.length} waiting)`;
+  counts.comparisons = `${done.comparisons.length} comparison(s) given, ${pairs.pairs.length} pair(s) wait`;
+  showCounts();
   const body = document.getElementById("comparisons");
   body.replaceChildren();
   const words = {a: "left", b: "right", equal: "equal"};

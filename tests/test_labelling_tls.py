@@ -1,0 +1,187 @@
+"""The labelling page (and the Foxglove server) for people on a network: TLS, the refusal to serve
+beyond loopback in clear text, and a page that says what to judge. Real processes, a real
+certificate made by `nmrm tls cert`, requests over real TLS, the page in the real browser."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import http.client
+import json
+import re
+import socket
+import ssl
+import subprocess
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from nmrm_ros.testing.graph import executable, finish, start
+
+from test_labeller_web import ARTEFACTS, CHROMIUM, WebNode, play_episodes
+
+
+def _network_address() -> str | None:
+    """An address of this machine other than loopback (None where it has none)."""
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.connect(("192.0.2.1", 9))  # no packet is sent: the route says which address is ours
+            address = s.getsockname()[0]
+    except OSError:
+        return None
+    return None if address.startswith("127.") else address
+
+
+@pytest.fixture(scope="module")
+def certificate(tmp_path_factory):
+    """cert.pem and key.pem for 127.0.0.1, localhost, this machine's name and network address,
+    made by the documented command."""
+    out = tmp_path_factory.mktemp("tls")
+    hosts = ["127.0.0.1", "localhost", socket.gethostname()] + ([_network_address()] if _network_address() else [])
+    run = subprocess.run([executable("nmrm"), "tls", "cert", "--out", str(out),
+                          *[a for h in hosts for a in ("--host", h)]], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert "SHA-256 fingerprint" in run.stdout and (out / "key.pem").stat().st_mode & 0o077 == 0
+    again = subprocess.run([executable("nmrm"), "tls", "cert", "--out", str(out), "--host", "x"],
+                           capture_output=True, text=True, timeout=60)
+    assert again.returncode == 2 and "exists: not replaced" in again.stderr and len(again.stderr.splitlines()) == 1
+    return out / "cert.pem", out / "key.pem"
+
+
+def _client_context(cert: Path) -> ssl.SSLContext:
+    return ssl.create_default_context(cafile=str(cert))
+
+
+def _spki_hash(cert: Path) -> str:
+    """base64 SHA-256 of the certificate's public key: what Chromium's
+    --ignore-certificate-errors-spki-list trusts (this certificate only)."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+
+    key = x509.load_pem_x509_certificate(cert.read_bytes()).public_key()
+    der = key.public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
+    return base64.b64encode(hashlib.sha256(der).digest()).decode()
+
+
+def _request(url: str, context: ssl.SSLContext, token: str, body: dict | None = None,
+             headers: dict | None = None) -> tuple:
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, method="POST" if data is not None else "GET")
+    req.add_header("X-Token", token)
+    if data is not None:
+        req.add_header("Content-Type", "application/json")
+    for k, v in (headers or {}).items():
+        req.add_header(k, v)
+    try:
+        with urllib.request.urlopen(req, timeout=10, context=context) as r:
+            text = r.read()
+            is_json = r.headers.get("Content-Type", "").startswith("application/json")
+            return r.status, json.loads(text) if is_json else text.decode(), r.headers
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read()), exc.headers
+
+
+def test_beyond_loopback_without_tls_the_servers_do_not_start(ros_domain, tmp_path, certificate):
+    """host:=0.0.0.0 without a certificate: labeller_web and foxglove_server exit 2 with one line
+    saying why (and what to give); with trusted_network:=true they start. A missing certificate,
+    a file that is not one, a key that is not the certificate's: one line each, no labels dir left."""
+    cert, key = certificate
+    other_key = tmp_path / "other"
+    subprocess.run([executable("nmrm"), "tls", "cert", "--out", str(other_key), "--host", "x"], check=True,
+                   capture_output=True, timeout=60)
+    not_pem = tmp_path / "not.pem"
+    not_pem.write_text("hello\n")
+    cases = [({"host": "0.0.0.0"}, "clear text"),
+             ({"certfile": str(tmp_path / "none.pem"), "keyfile": str(key)}, "no such file"),
+             ({"certfile": str(not_pem), "keyfile": str(key)}, "not a PEM certificate"),
+             ({"certfile": str(cert), "keyfile": str(other_key / "key.pem")}, "the key is not the certificate's"),
+             ({"certfile": str(cert)}, "go together")]
+    for node in ("labeller_web", "foxglove_server"):
+        for params, why in cases:
+            labels = tmp_path / f"labels_{node}"
+            extra = {"labels_dir": str(labels)} if node == "labeller_web" else {}
+            code, out = finish(start(node, port=0, **params, **extra), 60)
+            errors = [line for line in out.splitlines() if "ERROR" in line or "error" in line]
+            assert code == 2 and why in out and len(errors) == 1, (node, params, out)
+            assert "Traceback" not in out and not labels.exists(), (node, params, out)
+        proc = start(node, port=0, host="0.0.0.0", trusted_network=True, **extra)
+        try:
+            line = ""
+            for line in proc.stdout:
+                if "labelling page: " in line or "Foxglove: " in line:
+                    break
+            assert f"://{socket.gethostname()}:" in line, line
+        finally:
+            proc.terminate()
+            finish(proc, 30)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
+                                             "apt when run as root)")
+def test_a_person_labels_over_https_and_sees_what_to_judge(ros_domain, tmp_path, certificate):
+    """labeller_web with a certificate, on every address, for a team of two: each URL printed is
+    https:// (the token appears in the log only there); a plain-HTTP request to the port gets
+    no answer; another origin's POST is refused; the cookie is Secure. In Chromium (trusting
+    this certificate only) through this machine's network address, alice's page shows the Key
+    task's instruction, a legend of the zones, start, path and step, the keys and her counts,
+    and her label reaches the node. Screenshot: build/test_artefacts/labelling_page_tls.png."""
+    from playwright.sync_api import expect, sync_playwright
+
+    cert, key = certificate
+    address = _network_address() or "127.0.0.1"
+    node = WebNode(tmp_path / "labels", certfile=str(cert), keyfile=str(key), host="0.0.0.0",
+                   people="[alice, bob]")
+    try:
+        url = node.url
+        assert url.startswith(f"https://{socket.gethostname()}:"), node.lines
+        port, token = int(url.split(":")[2].split("/")[0]), url.split("token=")[1]
+        base = f"https://{address}:{port}"
+        context = _client_context(cert)
+        play_episodes(2)
+        status, queue, _ = _request(base + "/api/queue", context, token)
+        assert status == 200
+        # plain HTTP to the TLS port: no answer, and nothing labelled
+        conn = http.client.HTTPConnection(address, port, timeout=10)
+        with pytest.raises((ConnectionError, http.client.HTTPException, OSError)):
+            conn.request("GET", f"/api/queue?token={token}")
+            conn.getresponse()
+        conn.close()
+        status, answer, _ = _request(base + "/api/label", context, token, {"episode": 0, "return": 1.0},
+                                     headers={"Origin": f"https://evil.example:{port}"})
+        assert status == 403 and "cross-origin" in answer["error"], answer
+        status, _, headers = _request(base + f"/?token={token}", context, "")
+        assert status == 200 and "Secure" in headers["Set-Cookie"] and "HttpOnly" in headers["Set-Cookie"]
+
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=[
+                "--no-sandbox", f"--ignore-certificate-errors-spki-list={_spki_hash(cert)}"])
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+            errors: list = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"{base}/?token={token}")
+            page.wait_for_selector("#queue li")
+            assert "only once the agent has been in the blue key zone" in page.text_content("#instruction")
+            legend = page.text_content("#legend")
+            for words in ("key: visit it first", "treasure: +1 a step once the key is collected",
+                          "where the episode starts", "the path so far", "where it is at the step shown"):
+                assert words in legend, legend
+            assert page.locator("#legend .zone-swatch.zone-key").count() == 1
+            assert "Enter: give the return typed" in page.text_content("#shortcuts")
+            page.wait_for_selector("#arena circle.start")
+            expect(page.locator("#counts")).to_have_text(re.compile(r"^0 return\(s\) given, [12] episode\(s\) wait$"))
+            ARTEFACTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(ARTEFACTS / "labelling_page_tls.png"), full_page=True)
+            page.fill("#return", "3.5")
+            page.click("#submit")
+            page.wait_for_selector("#history tr")
+            expect(page.locator("#counts")).to_have_text(re.compile(r"^1 return\(s\) given, [01] episode\(s\) wait$"))
+            assert errors == []
+            browser.close()
+    finally:
+        out = node.stop()
+    assert "labelled episode" in out, out
+    assert sum(token in line for line in out.splitlines()) == 1, out  # her URL's line only
+    assert all(line.split("labelling page: ")[1].startswith("https://") for line in out.splitlines()
+               if "labelling page: " in line), out
