@@ -185,3 +185,38 @@ def test_a_person_labels_over_https_and_sees_what_to_judge(ros_domain, tmp_path,
     assert sum(token in line for line in out.splitlines()) == 1, out  # her URL's line only
     assert all(line.split("labelling page: ")[1].startswith("https://") for line in out.splitlines()
                if "labelling page: " in line), out
+
+
+def test_the_foxglove_server_speaks_wss_only_with_a_certificate(ros_domain, certificate):
+    """foxglove_server with a certificate: its URL is wss://; a WebSocket client that trusts the
+    certificate gets the server's info over TLS; a plain ws:// handshake to the port gets nothing."""
+    import asyncio
+
+    import aiohttp
+
+    cert, key = certificate
+    proc = start("foxglove_server", port=0, certfile=str(cert), keyfile=str(key), token="test-token-123")
+    try:
+        line = ""
+        for line in proc.stdout:
+            if "Foxglove: " in line:
+                break
+        url = line.split("Foxglove: ")[1].split()[0]
+        assert url.startswith("wss://127.0.0.1:") and "app.foxglove.dev" in line, line
+        port = int(url.split(":")[2].split("/")[0])
+
+        async def connect(scheme: str, context):
+            async with aiohttp.ClientSession() as session:
+                async with session.ws_connect(f"{scheme}://127.0.0.1:{port}/?token=test-token-123",
+                                              ssl=context if context is not None else True,
+                                              protocols=("foxglove.websocket.v1",),
+                                              timeout=aiohttp.ClientWSTimeout(ws_close=10)) as ws:
+                    return json.loads((await ws.receive(timeout=10)).data)
+
+        info = asyncio.run(connect("wss", _client_context(cert)))
+        assert info["op"] == "serverInfo", info
+        with pytest.raises((aiohttp.ClientError, asyncio.TimeoutError, ConnectionError)):
+            asyncio.run(asyncio.wait_for(connect("ws", None), 20))
+    finally:
+        proc.send_signal(2)
+        finish(proc, 30)
