@@ -9,9 +9,12 @@ import hashlib
 import http.client
 import json
 import re
+import signal
 import socket
 import ssl
 import subprocess
+import threading
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -220,3 +223,90 @@ def test_the_foxglove_server_speaks_wss_only_with_a_certificate(ros_domain, cert
     finally:
         proc.send_signal(2)
         finish(proc, 30)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
+                                             "apt when run as root)")
+def test_two_people_on_another_machine_label_a_label_launch_session_over_https(ros_domain, tmp_path, certificate):
+    """The docs' commands on two "machines" (network namespaces joined by a veth link; root only):
+    the lab machine runs `nmrm launch label.launch.yaml` for [alice, bob] on every address with a
+    certificate made by `nmrm tls cert --host <its address>`; on the other machine Chromium
+    (trusting that certificate only) opens each person's https:// URL: each sees what to judge and
+    labels the episode the page gives them, and the session logs both labels.
+    Screenshots: build/test_artefacts/labelling_page_tls_{alice,bob}.png."""
+    import os
+
+    from playwright.sync_api import sync_playwright
+
+    from nmrm_ros.testing.netns import HostsUnavailable, in_host, make_hosts, remove_hosts
+
+    try:
+        hosts, namespaces = make_hosts(routed=False)
+    except HostsUnavailable as exc:
+        pytest.skip(str(exc))
+    session = None
+    try:
+        lab, desk = hosts.robot, hosts.workstation
+        tls = tmp_path / "tls"
+        made = subprocess.run([executable("nmrm"), "tls", "cert", "--host", hosts.robot_ip, "--out", str(tls)],
+                              capture_output=True, text=True, timeout=60)
+        assert made.returncode == 0, made.stderr
+        start_model = subprocess.run([executable("nmrm"), "train", "--task", "key", "--n", "60", "--epochs", "1",
+                                      "--ensemble", "2", "--out", str(tmp_path / "start")],
+                                     capture_output=True, text=True, timeout=300)
+        assert start_model.returncode == 0, start_model.stderr
+        launch_file = Path(__file__).resolve().parents[1] / "launch_scripts" / "label.launch.yaml"
+        session = in_host(lab, os.environ.copy(), executable("nmrm"), "launch", str(launch_file),
+                          f"checkpoint:={tmp_path / 'start.pt'}", "people:=[alice, bob]", "episodes:=3",
+                          "host:=0.0.0.0", "port:=0", f"certfile:={tls / 'cert.pem'}", f"keyfile:={tls / 'key.pem'}",
+                          f"out:={tmp_path / 'session'}")
+        lines, urls = [], {}
+        for line in session.stdout:
+            lines.append(line)
+            if "labelling page: " in line:
+                person = line.split("labeller person/")[1].split(",")[0]
+                urls[person] = line.split("labelling page: ")[1].split()[0]
+            if len(urls) == 2:
+                break
+        assert set(urls) == {"alice", "bob"} and all(u.startswith("https://") for u in urls.values()), "".join(lines)
+        reader = threading.Thread(target=lambda: lines.extend(session.stdout), daemon=True)
+        reader.start()
+        wrapper = tmp_path / "chromium_on_the_other_machine"
+        wrapper.write_text(f'#!/bin/sh\nexec ip netns exec {desk} {CHROMIUM} "$@"\n')
+        wrapper.chmod(0o755)
+        given = {}
+        ARTEFACTS.mkdir(parents=True, exist_ok=True)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=str(wrapper), args=[
+                "--no-sandbox", f"--ignore-certificate-errors-spki-list={_spki_hash(tls / 'cert.pem')}"])
+            for n, person in enumerate(("alice", "bob")):
+                port, token = urls[person].split(":")[2].split("/")[0], urls[person].split("token=")[1]
+                page = browser.new_page(viewport={"width": 1200, "height": 900})
+                errors: list = []
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.goto(f"https://{hosts.robot_ip}:{port}/?token={token}", timeout=60_000)
+                page.wait_for_selector("#arena polyline", timeout=60_000)
+                assert page.text_content("#who").startswith(f"person/{person}")
+                assert "blue key zone" in page.text_content("#instruction")
+                assert "key: visit it first" in page.text_content("#legend")
+                given[person] = int(page.text_content("#title").split()[1])
+                page.screenshot(path=str(ARTEFACTS / f"labelling_page_tls_{person}.png"), full_page=True)
+                page.fill("#return", str(10 + n))
+                page.click("#submit")
+                page.wait_for_selector("#history tr")
+                assert errors == []
+            browser.close()
+        assert given["alice"] != given["bob"], given  # split: each episode to one person
+        deadline = time.monotonic() + 30
+        want = [f"person/{p} labelled episode {given[p]}: return {10 + n}" for n, p in enumerate(("alice", "bob"))]
+        while not all(any(w in line for line in lines) for w in want) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert all(any(w in line for line in lines) for w in want), "".join(lines)
+    finally:
+        if session is not None and session.poll() is None:
+            session.send_signal(signal.SIGINT)
+            try:
+                session.wait(60)
+            except subprocess.TimeoutExpired:
+                os.killpg(session.pid, signal.SIGKILL)
+        remove_hosts(namespaces)
