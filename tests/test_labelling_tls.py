@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from nmrm_ros.testing.graph import executable, finish, start
+from nmrm_ros.testing.graph import Capture, executable, finish, start
 
 from test_labeller_web import ARTEFACTS, CHROMIUM, WebNode, play_episodes
 
@@ -125,15 +125,22 @@ def test_beyond_loopback_without_tls_the_servers_do_not_start(ros_domain, tmp_pa
                                              "apt when run as root)")
 def test_a_person_labels_over_https_and_sees_what_to_judge(ros_domain, tmp_path, certificate):
     """labeller_web with a certificate, on every address, for a team of two: each URL printed is
-    https:// (the token appears in the log only there); a plain-HTTP request to the port gets
+    https:// (a token appears there only: not on /rosout, which the network can read); a plain-HTTP request to the port gets
     no answer; another origin's POST is refused; the cookie is Secure. In Chromium (trusting
     this certificate only) through this machine's network address, alice's page shows the Key
     task's instruction, a legend of the zones, start, path and step, the keys and her counts,
     and her label reaches the node. Screenshot: build/test_artefacts/labelling_page_tls.png."""
     from playwright.sync_api import expect, sync_playwright
 
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
     cert, key = certificate
     address = _network_address() or "127.0.0.1"
+    capture = Capture()  # reads /rosout: what anyone on the DDS network can read
+    rosout: list = []
+    capture.node.create_subscription(Log, "/rosout", lambda m: rosout.append(m.msg), QoSProfile(
+        depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
     node = WebNode(tmp_path / "labels", certfile=str(cert), keyfile=str(key), host="0.0.0.0",
                    people="[alice, bob]")
     try:
@@ -182,8 +189,11 @@ def test_a_person_labels_over_https_and_sees_what_to_judge(ros_domain, tmp_path,
             expect(page.locator("#counts")).to_have_text(re.compile(r"^1 return\(s\) given, [01] episode\(s\) wait$"))
             assert errors == []
             browser.close()
+        assert capture.spin_until(lambda: any("labelled episode" in m for m in rosout), 20), rosout
+        assert not any(token in m for m in rosout), rosout
     finally:
         out = node.stop()
+        capture.close()
     assert "labelled episode" in out, out
     assert sum(token in line for line in out.splitlines()) == 1, out  # her URL's line only
     assert all(line.split("labelling page: ")[1].startswith("https://") for line in out.splitlines()

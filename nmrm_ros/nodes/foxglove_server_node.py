@@ -82,7 +82,7 @@ class FoxgloveServerNode(NmrmNode):
         if allowed_hosts is not None:  # the Host a client sends for this address and port
             allowed_hosts.update(self.web.allowed_hosts())
         url = self.web.url("/").replace("http", "ws", 1) + f"?token={self.server.token}"
-        self.get_logger().info(f"Foxglove: {url}  (open in the web app: https://app.foxglove.dev/?ds=foxglove-websocket"
+        self.tell_starter(f"Foxglove: {url}  (open in the web app: https://app.foxglove.dev/?ds=foxglove-websocket"
                                f"&ds.url={quote(url, safe='')}; layout config/foxglove/nmrm_layout.json)")
         self.create_timer(float(p["discovery_period"]), self.discover)
         self.exit_with_upstream(self.subs)

@@ -209,7 +209,7 @@ class LabellerWebNode(NmrmNode):
         by_person = {person: tok for tok, person in (tokens or {}).items()}
         for person in people:
             url = base + (f"?token={by_person[person]}" if person in by_person else "")
-            self.get_logger().info(f"labelling page: {url} (task {self.task}, labeller person/{person}, "
+            self.tell_starter(f"labelling page: {url} (task {self.task}, labeller person/{person}, "
                                    f"{len(self.queue.done_before[person])} episode(s) labelled before, "
                                    f"labels to {self.stores[person].path})")
         self.exit_with_upstream(self.sub)

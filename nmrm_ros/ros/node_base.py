@@ -56,6 +56,12 @@ class NmrmNode(Node):
         if self.params.get("exit_with_upstream"):
             exit_with_upstream(self, subscriptions, on_gone=on_gone)
 
+    def tell_starter(self, text: str) -> None:
+        """Say `text` (e.g. a URL with an access token) to the person who started the node only:
+        on its terminal (stderr, as the logger's INFO lines look), not on /rosout, which anyone on
+        the DDS network can read, nor in the ROS log files."""
+        print(f"[INFO] [{self.get_name()}]: {text}", file=sys.stderr, flush=True)
+
     def diagnose(self, values: Callable[[], dict], **kwargs) -> None:
         """Publish `values()` (and rate_of / warn / hardware_id: `ros.diagnostics.Diagnostics`)
         on /diagnostics."""
