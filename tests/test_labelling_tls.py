@@ -89,7 +89,8 @@ def _request(url: str, context: ssl.SSLContext, token: str, body: dict | None = 
 def test_beyond_loopback_without_tls_the_servers_do_not_start(ros_domain, tmp_path, certificate):
     """host:=0.0.0.0 without a certificate: labeller_web and foxglove_server exit 2 with one line
     saying why (and what to give); with trusted_network:=true they start. A missing certificate,
-    a file that is not one, a key that is not the certificate's: one line each, no labels dir left."""
+    a file that is not one, a key that is not the certificate's, an instruction file that is not
+    UTF-8 text: one line each, no labels dir left."""
     cert, key = certificate
     other_key = tmp_path / "other"
     subprocess.run([executable("nmrm"), "tls", "cert", "--out", str(other_key), "--host", "x"], check=True,
@@ -109,6 +110,14 @@ def test_beyond_loopback_without_tls_the_servers_do_not_start(ros_domain, tmp_pa
             errors = [line for line in out.splitlines() if "ERROR" in line or "error" in line]
             assert code == 2 and why in out and len(errors) == 1, (node, params, out)
             assert "Traceback" not in out and not labels.exists(), (node, params, out)
+        if node == "labeller_web":  # the instruction file: missing, a directory, not text, empty
+            binary, empty = tmp_path / "binary.txt", tmp_path / "empty.txt"
+            binary.write_bytes(b"\xff\xfe\x00bad")
+            empty.write_text("  \n")
+            for path, why in ((tmp_path / "none.txt", "No such file"), (tmp_path, "a directory"),
+                              (binary, "not UTF-8"), (empty, "0 characters")):
+                code, out = finish(start(node, port=0, instruction=str(path), **extra), 60)
+                assert code == 2 and why in out and "Traceback" not in out, (path, out)
         proc = start(node, port=0, host="0.0.0.0", trusted_network=True, **extra)
         try:
             line = ""
