@@ -49,7 +49,7 @@ def server_context(certfile: str, keyfile: str) -> ssl.SSLContext | None:
     context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
     context.minimum_version = ssl.TLSVersion.TLSv1_2
     try:
-        context.load_cert_chain(certfile, keyfile)
+        context.load_cert_chain(certfile, keyfile, password=lambda: b"")  # an encrypted key fails, never prompts
     except ssl.SSLError as exc:
         why = "the key is not the certificate's" if "KEY_VALUES_MISMATCH" in str(exc) else \
             "not a PEM certificate and its unencrypted PEM private key"
@@ -73,10 +73,14 @@ def self_signed(out_dir: str | Path, hosts: list, days: int = 365) -> tuple:
     """Write a self-signed certificate for `hosts` (DNS names and IP addresses; the first is its
     common name) and its private key (EC P-256, readable by you only) to out_dir/cert.pem and
     out_dir/key.pem; (cert path, key path). Existing files are not replaced (TLSError)."""
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+    try:
+        from cryptography import x509
+        from cryptography.hazmat.primitives import hashes, serialization
+        from cryptography.hazmat.primitives.asymmetric import ec
+        from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+    except ImportError:
+        raise TLSError("needs the Python package cryptography (pip install cryptography), or make the pair "
+                       "with openssl req -x509") from None
 
     hosts = [str(h).strip() for h in hosts if str(h).strip()]
     if not hosts:
@@ -107,14 +111,20 @@ def self_signed(out_dir: str | Path, hosts: list, days: int = 365) -> tuple:
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
             .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
             .sign(key, hashes.SHA256()))
+    written = []
     try:
         out.mkdir(parents=True, exist_ok=True)
-        fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        with os.fdopen(fd, "wb") as f:
-            f.write(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                      serialization.NoEncryption()))
-        cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        for path, data, mode in ((key_path, key.private_bytes(serialization.Encoding.PEM,
+                                                              serialization.PrivateFormat.PKCS8,
+                                                              serialization.NoEncryption()), 0o600),
+                                 (cert_path, cert.public_bytes(serialization.Encoding.PEM), 0o644)):
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
+            written.append(path)
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
     except OSError as exc:
+        for path in written:  # nothing half-written
+            path.unlink(missing_ok=True)
         raise TLSError(f"cannot write to {out}: {exc.strerror or exc}") from None
     return cert_path, key_path
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import ipaddress
 import socket
 import ssl
 import threading
@@ -18,7 +19,24 @@ from aiohttp import web
 
 from .tls import LOOPBACK, TLSError, exposure_error, server_context
 
-ANY_ADDRESS = ("0.0.0.0", "::")
+def is_any_address(host: str) -> bool:
+    """True for a host that binds every address ("", 0.0.0.0, ::, written any way)."""
+    if host in ("", "0.0.0.0", "::"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_unspecified
+    except ValueError:
+        return False
+
+
+def _host_form(name: str) -> str:
+    """How a browser writes `name` in a Host header: lower case, an IPv6 address compressed and in
+    brackets."""
+    try:
+        address = ipaddress.ip_address(name)
+    except ValueError:
+        return name.lower()
+    return f"[{address.compressed}]" if address.version == 6 else address.compressed
 
 
 class WebServer:
@@ -41,17 +59,19 @@ class WebServer:
     def url(self, path: str = "/") -> str:
         """This server's URL (the bound port included); on every address, by this machine's name
         (what people on other machines type, and the name a certificate is made for)."""
-        host = socket.gethostname() if self.host in ANY_ADDRESS else self.host
+        host = socket.gethostname() if is_any_address(self.host) else self.host
         host = f"[{host}]" if ":" in host else host
         return f"{self.scheme}://{host}:{self.port}{path}"
 
     def allowed_hosts(self) -> set | None:
         """The `Host` header values that name this server ("name:port", lower case); None when it
         listens on every address (any name may reach it; the token guards it)."""
-        if self.host in ANY_ADDRESS:
+        if is_any_address(self.host):
             return None
         names = LOOPBACK if self.host in LOOPBACK else (self.host,)
-        return {(f"[{n}]" if ":" in n else n).lower() + f":{self.port}" for n in names}
+        default = 443 if self.ssl_context is not None else 80  # a browser leaves this port out
+        ports = ("", f":{self.port}") if self.port == default else (f":{self.port}",)
+        return {_host_form(n) + port for n in names for port in ports}
 
     def start(self, timeout: float = 10.0) -> None:
         """Bind and serve; OSError if it cannot (a port outside 0-65535 included: the socket

@@ -97,10 +97,17 @@ def test_beyond_loopback_without_tls_the_servers_do_not_start(ros_domain, tmp_pa
                    capture_output=True, timeout=60)
     not_pem = tmp_path / "not.pem"
     not_pem.write_text("hello\n")
+    from cryptography.hazmat.primitives import serialization
+
+    locked = tmp_path / "locked.pem"  # the same key, encrypted: refused, never a passphrase prompt
+    locked.write_bytes(serialization.load_pem_private_key(key.read_bytes(), None).private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+        serialization.BestAvailableEncryption(b"secret")))
     cases = [({"host": "0.0.0.0"}, "clear text"),
              ({"certfile": str(tmp_path / "none.pem"), "keyfile": str(key)}, "no such file"),
              ({"certfile": str(not_pem), "keyfile": str(key)}, "not a PEM certificate"),
              ({"certfile": str(cert), "keyfile": str(other_key / "key.pem")}, "the key is not the certificate's"),
+             ({"certfile": str(cert), "keyfile": str(locked)}, "unencrypted PEM private key"),
              ({"certfile": str(cert)}, "go together")]
     for node in ("labeller_web", "foxglove_server"):
         for params, why in cases:

@@ -26,7 +26,7 @@ from ..ros.field_paths import message_class
 from ..ros.msg_schema import ros2msg_schema
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import EXIT_WITH_UPSTREAM, SERVER_TLS, Param, start_server
-from ..web_server import ANY_ADDRESS
+from ..web_server import is_any_address
 
 DEFAULT_TOPICS = ["/nmrm/viz/arena", "/nmrm/viz/pose", "/nmrm/viz/path", "/nmrm/viz/reward",
                   "/nmrm/viz/reward_std", "/nmrm/viz/hidden", "/diagnostics", "/nmrm/reward_step",
@@ -74,7 +74,7 @@ class FoxgloveServerNode(NmrmNode):
         self.subs: list = []  # the subscriptions, as topics appear
         self.skipped: set = set()
         host = str(p["host"])
-        allowed_hosts: set | None = None if host in ANY_ADDRESS else set()
+        allowed_hosts: set | None = None if is_any_address(host) else set()
         self.server = FoxgloveServer(p["token"] or secrets.token_urlsafe(24), tuple(p["allowed_origins"]),
                                      allowed_hosts)
         self.web = start_server(self.server.app, p)

@@ -69,7 +69,7 @@ from ..ros.episodes import EpisodeFollower, Kind
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import SERVER_TLS, NodeError, Param, live_parameter, require_task, start_server
 from ..tls import LOOPBACK
-from ..web_server import ANY_ADDRESS
+from ..web_server import is_any_address
 from ..ros.topics import FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 PARAMETERS = {
@@ -105,6 +105,11 @@ def read_instruction(path: str) -> str:
     """The text of an instruction file (whitespace folded); NodeError if it is not a readable
     UTF-8 text file of 1 to MAX_INSTRUCTION characters."""
     try:
+        if Path(path).is_file() and Path(path).stat().st_size > 4 * MAX_INSTRUCTION:
+            raise NodeError(f"instruction {path}: over {4 * MAX_INSTRUCTION} bytes; give 1 to "
+                            f"{MAX_INSTRUCTION} characters")
+        if Path(path).exists() and not Path(path).is_file() and not Path(path).is_dir():
+            raise NodeError(f"instruction {path}: not a regular file")
         text = Path(path).read_text(encoding="utf-8")
     except IsADirectoryError:
         raise NodeError(f"instruction {path}: a directory, not a text file") from None
@@ -188,7 +193,7 @@ class LabellerWebNode(NmrmNode):
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
         self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
         self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
-        allowed_hosts = None if p["host"] in ANY_ADDRESS else set()  # filled once the port is bound
+        allowed_hosts = None if is_any_address(str(p["host"])) else set()  # filled once the port is bound
         words = {"instruction": instruction, "legend": [list(pair) for pair in self.info.legend]}
         app = make_app(self.queue, self.on_label, words, tokens=tokens or None, frames=self.frames,
                        allowed_hosts=allowed_hosts, team=self._gold_report, on_compare=self.on_compare,

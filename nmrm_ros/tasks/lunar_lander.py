@@ -256,10 +256,11 @@ def _task_info():
 #: what a person judges (the labelling page), from the paper's task (App. D.1)
 INSTRUCTION = ("The lander (its path in red, from the start marked o) should land on the pad (grey, both legs "
                "down, |x| <= 0.2) and stay there for 50 steps, then take off again and hover above the pad "
-               "(|x| <= 0.5, height 0.75-1.25) until step 500. Until it has spent 50 steps on the pad, each step "
-               "on the pad earns 1; after that, each step with no leg on the ground earns 1 and each step in "
-               "the hover zone 1 more; slow, steady, central flight earns up to 0.2 more a step. Judge the "
-               "whole episode: landing, waiting 50 steps, taking off and hovering.")
+               "(|x| <= 0.5, height 0.75-1.25; not drawn) until step 500. Until it has been on the pad for 50 "
+               "steps in all, each step on the pad earns 1 and slow, steady flight towards the pad up to 0.2 "
+               "more; after that, each step with no leg on the ground earns 1, each step in the hover zone 1 "
+               "more, and slow, steady, central flight at hover height up to 0.2 more. Judge the whole "
+               "episode: landing, waiting 50 steps, taking off and hovering.")
 
 
 TASK_INFO = _task_info()

@@ -161,8 +161,9 @@ _ROOM = ("The agent (the red dot; its path in red, from the start marked o) move
          "100 steps, starting in one of the grey spawn zones. ")
 INSTRUCTIONS = {
     "timer": _ROOM + "Each step it spends in the yellow treasure zone counts -1 during the first 50 steps "
-                     "(t <= 50) and +1 after them. The return: the steps in the treasure after step 50 minus "
-                     "the steps in it up to step 50 (from -50 to 50).",
+                     "(steps 0-49) and +1 after them (steps 50-99; the last position, step 100, counts "
+                     "nothing). The return: the steps in the treasure at 50-99 minus those at 0-49 "
+                     "(from -50 to 50).",
     "moving": _ROOM + "The treasure is a box 0.2 wide that slides left and right along the yellow row at a "
                       "constant speed (0.02 a step, starting at x 0.4-0.6 and moving left, turning at the "
                       "walls); it is not drawn. Each step the agent is inside the moving treasure earns +1. "

@@ -208,6 +208,7 @@ async function submit(ev) {
 
 async function skip() {
   if (!current) return;
+  if (document.activeElement) document.activeElement.blur();  // Space must not answer again
   try { await api("/api/skip", {episode: current.episode}); current = null; await refresh(true); }
   catch (e) { showError(e); }
 }
@@ -242,14 +243,19 @@ function showTask() {
     legend.appendChild(legendItem("path-swatch", "plots: each state dimension over time, scaled to its range in the episode; the red line is the step shown"));
   }
   const keys = [];
-  if (info.feedback !== "preferences") keys.push("Enter: give the return typed", "Space: play / pause");
+  if (info.feedback !== "preferences") keys.push("Enter: give the return typed");
+  keys.push(info.feedback === "preferences" ? "Space: play / pause both" : "Space: play / pause");
   if (info.feedback !== "returns") keys.push("←: left is better", "→: right is better", "=: equal", "s: can't tell");
   document.getElementById("shortcuts").textContent = "Keys — " + keys.join(" · ");
+  // Space plays / pauses, also where a button has the focus (it would press that button again)
   document.addEventListener("keydown", (ev) => {
-    if (ev.key !== " " || ev.target.tagName === "INPUT" || ev.target.tagName === "BUTTON") return;
+    if (ev.key !== " " || ev.target.tagName === "INPUT" || ev.ctrlKey || ev.metaKey || ev.altKey) return;
     ev.preventDefault();
     if (info.feedback === "preferences") { if (pairTimer) stopPair(); else playPair(); }
     else if (timer) stop(); else play();
+  });
+  document.addEventListener("keyup", (ev) => {
+    if (ev.key === " " && ev.target.tagName === "BUTTON") ev.preventDefault();
   });
 }
 
@@ -306,7 +312,7 @@ function setupCompare() {
   document.getElementById("cant-tell").addEventListener("click", () => cantTell());
   document.getElementById("pair-play").addEventListener("click", playPair);
   document.addEventListener("keydown", (ev) => {
-    if (!pair || ev.target.tagName === "INPUT") return;
+    if (!pair || ev.target.tagName === "INPUT" || ev.ctrlKey || ev.metaKey || ev.altKey) return;
     const key = {ArrowLeft: "a", ArrowRight: "b", "=": "equal", s: "cant"}[ev.key];
     if (!key) return;
     ev.preventDefault();
@@ -376,6 +382,7 @@ async function refreshPairs(openFirst) {
 
 async function answerPair(answer) {
   if (!pair) return;
+  if (document.activeElement) document.activeElement.blur();  // Space must not answer again
   try {
     const res = await api("/api/compare", {a: pair.a.episode, b: pair.b.episode, preference: answer});
     const words = {a: "left better", b: "right better", equal: "equal"};
@@ -387,6 +394,7 @@ async function answerPair(answer) {
 
 async function cantTell() {
   if (!pair) return;
+  if (document.activeElement) document.activeElement.blur();  // Space must not answer again
   try {
     await api("/api/cant_tell", {a: pair.a.episode, b: pair.b.episode});
     document.getElementById("status").textContent = `episodes ${pair.a.episode} and ${pair.b.episode}: can't tell`;
