@@ -415,7 +415,7 @@ def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, 
 def test_a_person_compares_two_episodes_in_the_browser(ros_domain, tmp_path):
     """feedback:=preferences: the page draws two episodes side by side (an SVG path each) and
     plays them; a click on "left", the → key and "can't tell" give two TrajectoryPreference
-    messages on the topic and in the labels bag (can't tell: none), and a restarted page does not
+    messages (Space after a click, and Ctrl+=, answer nothing) on the topic and in the labels bag (can't tell: none), and a restarted page does not
     offer the compared pairs again."""
     import re
 
@@ -448,6 +448,12 @@ def test_a_person_compares_two_episodes_in_the_browser(ros_domain, tmp_path):
             page.click("#left")
             page.wait_for_selector("#comparisons tr")
             expect(page.locator("#pair-title")).not_to_have_text(first)
+            second = page.text_content("#pair-title")
+            assert "Space: play / pause both" in page.text_content("#shortcuts")
+            page.keyboard.press(" ")  # plays / pauses: never presses the focused "left" button again
+            page.keyboard.press("Control+=")  # the browser's zoom, not "equal"
+            page.wait_for_timeout(500)
+            assert page.locator("#comparisons tr").count() == 1 and page.text_content("#pair-title") == second
             page.keyboard.press("ArrowRight")
             page.wait_for_selector("#comparisons tr:nth-child(2)")
             third = page.text_content("#pair-title")
