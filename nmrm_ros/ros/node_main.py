@@ -333,7 +333,7 @@ def exit_with_upstream(node, subscriptions, period: float = 0.2, on_gone=None) -
         if count > 0 or node.messages_received > 0:
             state["seen"] = True
         # Messages a lagging node has received but not yet read are still there once their
-        # publishers are gone (and the executor runs this timer before them): so the node leaves
+        # publishers are gone (the executor runs this timer between them): so the node leaves
         # only after a whole period without publishers in which it read nothing more.
         quiet = count == 0 and state["quiet_since"] == node.messages_received
         state["quiet_since"] = node.messages_received if count == 0 else None
