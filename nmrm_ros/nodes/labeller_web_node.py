@@ -104,15 +104,16 @@ MAX_INSTRUCTION = 4000  # characters of an instruction file
 def read_instruction(path: str) -> str:
     """The text of an instruction file (whitespace folded); NodeError if it is not a readable
     UTF-8 text file of 1 to MAX_INSTRUCTION characters."""
+    file = Path(path)
     try:
-        if Path(path).is_file() and Path(path).stat().st_size > 4 * MAX_INSTRUCTION:
+        if file.is_dir():
+            raise NodeError(f"instruction {path}: a directory, not a text file")
+        if file.exists() and not file.is_file():
+            raise NodeError(f"instruction {path}: not a regular file")
+        if file.exists() and file.stat().st_size > 4 * MAX_INSTRUCTION:  # checked before reading it
             raise NodeError(f"instruction {path}: over {4 * MAX_INSTRUCTION} bytes; give 1 to "
                             f"{MAX_INSTRUCTION} characters")
-        if Path(path).exists() and not Path(path).is_file() and not Path(path).is_dir():
-            raise NodeError(f"instruction {path}: not a regular file")
-        text = Path(path).read_text(encoding="utf-8")
-    except IsADirectoryError:
-        raise NodeError(f"instruction {path}: a directory, not a text file") from None
+        text = file.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise NodeError(f"instruction {path}: not UTF-8 text") from None
     except OSError as exc:

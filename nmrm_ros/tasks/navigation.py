@@ -176,11 +176,11 @@ INSTRUCTIONS = {
                        "charge it has then. The return: the sum of the charge over the steps spent in the "
                        "treasure (0 to 100).",
 }
-LEGEND = {"timer": (("spawn", "where the agent starts"), ("treasure", "treasure: -1 a step up to step 50, +1 after")),
-          "moving": (("spawn", "where the agent starts"), ("treasure row", "the row the (unseen) treasure slides along")),
-          "key": (("spawn", "where the agent starts"), ("key", "key: visit it first"),
-                  ("treasure", "treasure: +1 a step once the key is collected")),
-          "charger": (("spawn", "where the agent starts"), ("charger", "charger: +0.02 charge a step, up to 1"),
+_SPAWN = ("spawn", "where the agent starts")
+LEGEND = {"timer": (_SPAWN, ("treasure", "treasure: -1 a step at steps 0-49, +1 at 50-99")),
+          "moving": (_SPAWN, ("treasure row", "the row the (unseen) treasure slides along")),
+          "key": (_SPAWN, ("key", "key: visit it first"), ("treasure", "treasure: +1 a step once the key is collected")),
+          "charger": (_SPAWN, ("charger", "charger: +0.02 charge a step, up to 1"),
                       ("treasure", "treasure: pays the charge, each step"))}
 
 
