@@ -259,6 +259,8 @@ def test_sac_target_critics_are_clipped_to_the_soft_value_bound(tmp_path):
     ("keep_every: -1", "keep_every in .* must be a whole number of episodes >= 0"),
     ("keep_every: 2.5", "keep_every in .* must be a whole number"),
     ("bound_values: maybe", "bound_values in .* must be true or false"),
+    ("catch_up_steps: -5", "catch_up_steps in .* must be a whole number of gradient steps >= 0"),
+    ("catch_up_steps: 1.0e+4", "catch_up_steps in .* must be a whole number"),
 ])
 def test_nonsense_trust_settings_are_one_line_errors(tmp_path, line, message):
     from nmrm_ros.rl import load_rl_config
@@ -270,4 +272,5 @@ def test_nonsense_trust_settings_are_one_line_errors(tmp_path, line, message):
     config.write_text("dqn: {learning_rate: 1.0e-3}\n")  # a config written before them: the defaults
     from nmrm_ros.rl.config import trust_settings
 
-    assert trust_settings(load_rl_config("dqn", config)) == {"bound_values": True, "keep_every": 20}
+    assert trust_settings(load_rl_config("dqn", config)) == {"bound_values": True, "keep_every": 20,
+                                                             "catch_up_steps": 10000}

@@ -16,7 +16,7 @@ from nmrm_ros.mil.online import batched_reference
 from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper, load_rl_config, make_algorithm, make_reward_env
 from nmrm_ros.datasets import TrajectoryDataset
-from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
+from nmrm_ros.rl.replay_relabel import adopt_model, catch_up, relabel_replay_buffer
 from nmrm_ros.rl.reward_model_loop import round_pairs
 from nmrm_ros.tasks import make_env, task_info
 
@@ -86,6 +86,42 @@ def test_the_replay_buffer_is_relabelled_with_the_new_model(two_models, buffer_s
         np.testing.assert_allclose(buf.next_observations[idx, 0, D:], served[1:], rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("algo", ["dqn", "sac"])
+def test_catch_up_refits_the_agent_on_its_buffer_without_acting(algo):
+    """After a model change the agent takes gradient steps on the relabelled buffer, its target
+    networks following, before it acts again: no env step, the exploration schedule unmoved, at
+    most one step per stored transition; none before it has learning_starts transitions."""
+    import torch
+
+    cfg = load_rl_config(algo, task="key", learning_starts=10_000)
+    env = make_reward_env("key", "oracle", seed=0, continuous=algo == "sac")
+    agent = make_algorithm(env, algo, cfg, 100, seed=0)
+    agent.learn(total_timesteps=300)  # no gradient step yet: learning_starts not reached
+    assert agent._n_updates == 0  # noqa: SLF001
+    assert catch_up(agent, 50) == 0  # fewer transitions than learning_starts
+    agent.learning_starts = 100
+    target = agent.q_net_target if algo == "dqn" else agent.critic_target
+    before = [p.detach().clone() for p in target.parameters()]
+    steps, eps = agent.num_timesteps, getattr(agent, "exploration_rate", None)
+    assert catch_up(agent, 50) == 50
+    assert agent._n_updates == 50 and agent.num_timesteps == steps  # noqa: SLF001
+    assert getattr(agent, "exploration_rate", None) == eps
+    assert any(not torch.equal(a, b) for a, b in zip(before, target.parameters()))
+    assert catch_up(agent, 10_000) == 300  # no more steps than transitions stored
+    assert catch_up(agent, 0) == 0
+
+
+def test_adopting_a_new_model_relabels_then_catches_up(two_models):
+    old, new = two_models
+    agent = make_algorithm(make_reward_env("key", "model", old, seed=0), "dqn",
+                           load_rl_config("dqn", learning_starts=100), 100, seed=0)
+    agent.learn(total_timesteps=200)
+    updates = agent._n_updates  # noqa: SLF001
+    model, _ = load_checkpoint(new)
+    assert adopt_model(agent, OnlineRewardModel(model, served="h_tanh_c"), D, 150) == (200, 150)
+    assert agent._n_updates == updates + 150  # noqa: SLF001
+
+
 def test_nmrm_loop_runs_rounds_and_writes_what_it_says(tmp_path):
     out = tmp_path / "loop"
     res = subprocess.run([executable("nmrm"), "loop", "--task", "key", "--rounds", "3", "--labels-per-round", "20",
@@ -93,6 +129,7 @@ def test_nmrm_loop_runs_rounds_and_writes_what_it_says(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "round 2: 20 labels from agent episodes" in res.stdout
+    assert "agent: 400 stored transitions relabelled with model 2, 400 catch-up gradient steps" in res.stdout
     summary = json.loads((out / "loop.json").read_text())
     assert [r["total_labels"] for r in summary["rounds"]] == [20, 40, 60]
     assert [(r["first_episode"], r["last_episode"]) for r in summary["rounds"]] == [(0, 2), (2, 4), (4, 6)]

@@ -348,7 +348,8 @@ class Learner:
 
     def relabel_if_served(self) -> None:
         """Learner thread, between steps: relabel the replay buffer with `checkpoint` once a
-        robot's current episode is served by it (RewardStep.source = its file name)."""
+        robot's current episode is served by it (RewardStep.source = its file name), and refit
+        the agent on it (`catch_up_steps` gradient steps; the robots wait for the next action)."""
         wanted = self.checkpoint
         if not wanted or wanted == self.relabelled or self.model is None:
             return
@@ -358,7 +359,8 @@ class Learner:
         if name not in {env.source for env in self.envs}:
             return  # the reward model serves it from its next episode start
         from ..mil import CheckpointError, OnlineRewardModel
-        from ..rl.replay_relabel import relabel_replay_buffer
+        from ..rl.config import trust_settings
+        from ..rl.replay_relabel import adopt_model
 
         self.relabelled = wanted
         log = self.node.get_logger()
@@ -369,13 +371,14 @@ class Learner:
             if self.use_hidden and width != d + stepper.served_size:
                 raise ValueError(f"it serves {stepper.served_size} hidden values, the agent observes {width - d}")
             t0 = time.monotonic()
-            n = relabel_replay_buffer(self.model.replay_buffer, stepper, d)
+            n, steps = adopt_model(self.model, stepper, d, trust_settings(self.cfg)["catch_up_steps"])
         except (CheckpointError, ValueError, OSError) as exc:
             log.error(f"replay buffer not relabelled with {wanted}: {exc}")
             return
         if self.keeper is not None:  # a policy is kept with the model it acted on
             self.keeper.retag(wanted, self.model)
-        log.info(f"replay buffer relabelled with {name}: {n} transitions in {time.monotonic() - t0:.1f} s")
+        log.info(f"replay buffer relabelled with {name}: {n} transitions and {steps} catch-up gradient "
+                 f"steps in {time.monotonic() - t0:.1f} s")
 
     def on_episode(self, rec, info: dict) -> None:
         key = (info.get("robot", 0), info.get("episode_id", -1))

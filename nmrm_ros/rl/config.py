@@ -65,19 +65,20 @@ def load_rl_config(algo: str, path: str | Path | None = None, task: str | None =
 
 #: the settings that make an agent trustworthy (issue 50) and their defaults, for every task:
 #: targets clipped to the value bound (`value_bound`), a policy snapshot every `keep_every`
-#: episodes, the best kept (`kept_policy`; 0: keep the last policy)
-TRUST_DEFAULTS = {"bound_values": True, "keep_every": 20}
+#: episodes, the best kept (`kept_policy`; 0: keep the last policy), and `catch_up_steps`
+#: gradient steps on the relabelled replay buffer when the reward model changes (`replay_relabel`)
+TRUST_DEFAULTS = {"bound_values": True, "keep_every": 20, "catch_up_steps": 10000}
 
 
 def trust_settings(cfg: dict) -> dict:
-    """bound_values and keep_every of a config section, their defaults where it has none (a
-    config written before them)."""
+    """bound_values, keep_every and catch_up_steps of a config section, their defaults where it
+    has none (a config written before them)."""
     return {k: cfg.get(k, v) for k, v in TRUST_DEFAULTS.items()}
 
 
 def check_trust_settings(cfg: dict, source) -> None:
-    """ValueError (one line) for a bound_values that is not true/false or a keep_every that is not
-    a whole number >= 0."""
+    """ValueError (one line) for a bound_values that is not true/false or a keep_every or
+    catch_up_steps that is not a whole number >= 0."""
     trust = trust_settings(cfg)
     if not isinstance(trust["bound_values"], bool):
         raise ValueError(f"bound_values in {source} must be true or false, got {trust['bound_values']!r}")
@@ -85,6 +86,10 @@ def check_trust_settings(cfg: dict, source) -> None:
     if isinstance(every, bool) or not isinstance(every, int) or every < 0:
         raise ValueError(f"keep_every in {source} must be a whole number of episodes >= 0 (0: keep the last "
                          f"policy), got {every!r}")
+    steps = trust["catch_up_steps"]
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise ValueError(f"catch_up_steps in {source} must be a whole number of gradient steps >= 0 (0: none), "
+                         f"got {steps!r}")
 
 
 def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0, verbose: int = 0):

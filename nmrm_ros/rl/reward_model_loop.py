@@ -16,7 +16,10 @@ When the model changes, the agent's augmented state [s_t, h'_{t+1}] and its rewa
 The loop keeps the agent's networks (a warm start) and relabels its whole replay buffer with the
 new model (`replay_relabel`): every stored episode is stepped through the new model from its first
 state, so the agent learns only from the new model's rewards and hidden states; the episode that
-has just started is re-stepped too (`RewardModelWrapper.swap_model`). A model's served state must
+has just started is re-stepped too (`RewardModelWrapper.swap_model`). Before it acts on the new
+model, the agent's networks are refitted on the relabelled buffer (`catch_up_steps` gradient
+steps, config/rl.yaml): without it the policy fitted to the old model's hidden units was
+arbitrary on the new ones. A model's served state must
 keep its size across rounds (the same architecture and hidden size: the task's config).
 
 With `rounds=1` it is the offline baseline: one screened random dataset of `labels_per_round`
@@ -122,10 +125,12 @@ class LoopRounds(EpisodeCurveCallback):
     `boundaries[k - 1]` and swaps the model it returns in (at the start of the next episode, before
     the agent acts on it)."""
 
-    def __init__(self, boundaries: list, next_round) -> None:
+    def __init__(self, boundaries: list, next_round, catch_up_steps: int = 0, log=None) -> None:
         super().__init__()
         self.boundaries = list(boundaries)
         self.next_round = next_round
+        self.catch_up_steps = int(catch_up_steps)
+        self.log = log
         self.round = 0
         self._pending = False
 
@@ -141,7 +146,7 @@ class LoopRounds(EpisodeCurveCallback):
             return
         self._pending = False
         self.round += 1
-        from .replay_relabel import relabel_replay_buffer
+        from .replay_relabel import adopt_model
 
         model = self.next_round(self.round, self.model)
         if self.keeper is not None:  # a policy is kept with the model it acted on
@@ -149,7 +154,12 @@ class LoopRounds(EpisodeCurveCallback):
         wrapper = find_reward_wrapper(self.training_env.envs[0])
         obs = wrapper.swap_model(model)
         self.model._last_obs = obs[None].copy()  # noqa: SLF001 - the observation the agent acts on next
-        relabel_replay_buffer(self.model.replay_buffer, wrapper.stepper, wrapper.unwrapped.observation_space.shape[0])
+        t0 = time.perf_counter()
+        n, steps = adopt_model(self.model, wrapper.stepper, wrapper.unwrapped.observation_space.shape[0],
+                               self.catch_up_steps)
+        if self.log is not None:
+            self.log(f"agent: {n} stored transitions relabelled with model {self.round}, "
+                     f"{steps} catch-up gradient steps ({time.perf_counter() - t0:.0f} s)")
 
 
 def find_reward_wrapper(env):
@@ -213,7 +223,7 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     from ..mil.retrain import retrain
     from ..mil.training import load_train_config
     from ..oracles import make_oracle
-    from .config import algorithm_name, load_rl_config
+    from .config import algorithm_name, load_rl_config, trust_settings
     from .evaluation import evaluate_agent
     from .training import train_agent
     from .wrappers import make_reward_env
@@ -225,7 +235,8 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     t0 = time.perf_counter()
     cfg = load_train_config(task)
     members = members or cfg.members
-    episodes = int(load_rl_config(algorithm_name(task), task=task, episodes=episodes)["episodes"])
+    rl_cfg = load_rl_config(algorithm_name(task), task=task, episodes=episodes)
+    episodes = int(rl_cfg["episodes"])
     check_loop_arguments(rounds, labels_per_round, episodes)
     judge = make_oracle(task, oracle)
     result = LoopResult(task, out=str(out), feedback=feedback)
@@ -281,7 +292,7 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     first = generate_screened(task, labels_per_round, seed=seed, oracle=oracle)
     checkpoint = train_model(0, first, "screened random episodes")
     boundaries = [round(episodes * k / rounds) for k in range(1, rounds)]
-    callback = LoopRounds(boundaries, next_round)
+    callback = LoopRounds(boundaries, next_round, trust_settings(rl_cfg)["catch_up_steps"], log)
     run = train_agent(task, "model", checkpoint=checkpoint, episodes=episodes, seed=seed, out=out / "agent",
                       progress=progress, oracle=oracle, callback=callback)
     edges = [0] + boundaries + [episodes]
