@@ -19,6 +19,7 @@ from . import dataset  # noqa: E402,F401,I001
 from . import graph  # noqa: E402,F401
 from . import labels  # noqa: E402,F401
 from . import bag  # noqa: E402,F401
+from . import lerobot  # noqa: E402,F401
 from . import model  # noqa: E402,F401
 from . import discovery  # noqa: E402,F401
 from . import agents  # noqa: E402,F401

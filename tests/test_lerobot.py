@@ -1,0 +1,203 @@
+"""LeRobot v3.0 datasets out of and into bags: the files LeRobot reads (checked with pyarrow and
+PyAV, the libraries LeRobot reads them with), the learnt reward column, the round trip bag ->
+LeRobot -> bag (states, actions, frames within codec loss, labels, comparisons, provenance), and
+one-line errors that leave nothing half-written."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from nmrm_ros.bags.episodes import load_bag_dataset, write_dataset_bag
+from nmrm_ros.bags.reader import iter_decoded
+from nmrm_ros.bags.writer import BagWriter
+from nmrm_ros.datasets import generate_screened
+from nmrm_ros.lerobot import LeRobotError, export_lerobot, import_lerobot
+from nmrm_ros.lerobot.video import read_frames
+from nmrm_ros.mil import OnlineRewardModel, load_train_config
+from nmrm_ros.mil.pipeline import fit
+from nmrm_ros.tasks.frames import encode_frame, frame_id
+from nmrm_ros.testing.graph import executable
+
+EPISODES = 6
+
+
+def _picture(episode: int, step: int) -> np.ndarray:
+    """A 48x64 frame that says which step it shows (smooth, so the codec keeps it)."""
+    y, x = np.mgrid[0:48, 0:64]
+    rgb = np.stack([x * 3 + step % 40, y * 4 + episode * 10, np.full_like(x, 128)], -1)
+    return rgb.astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A Key recording of 6 episodes (actions, oracle labels, comparisons by bob), a labels bag of
+    alice's, a bag of rendered frames, and a 1-epoch model."""
+    root = tmp_path_factory.mktemp("lerobot")
+    ds = generate_screened("key", EPISODES, seed=3)
+    ds.preferences = np.array([[0, 1, 1.0], [2, 3, 0.0], [4, 5, 0.5]])
+    write_dataset_bag(ds, root / "rec", preference_labeller="bob")
+    with BagWriter(root / "alice") as bag:
+        for i in range(EPISODES):
+            bag.write_dict("/nmrm/trajectory_return", "nmrm_msgs/msg/TrajectoryReturn", {
+                "header": {"stamp": {"sec": 1000 + i, "nanosec": 5}, "frame_id": ""}, "task": "key",
+                "episode": i, "length": int(ds.lengths[i]), "return_value": float(i), "labeller": "alice"},
+                10**9 * (1000 + i))
+    with BagWriter(root / "frames") as bag:
+        t = 10**18
+        for i in range(EPISODES):
+            for step in range(int(ds.lengths[i]) + 1):
+                bag.write_dict("/nmrm/frame", "sensor_msgs/msg/CompressedImage", {
+                    "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}, "frame_id": frame_id(i, step)},
+                    "format": "png", "data": encode_frame(_picture(i, step), fmt="png")}, t)
+                t += 1000
+    model = fit(ds, "csc_lstm", load_train_config("key", max_epochs=1, seed=0), out=root / "model",
+                progress=False).checkpoint
+    return {"root": root, "ds": ds, "bags": [root / "rec", root / "alice", root / "frames"], "model": model}
+
+
+@pytest.fixture(scope="module")
+def exported(recording):
+    out = recording["root"] / "key_lerobot"
+    report = export_lerobot(recording["bags"], out, checkpoint=recording["model"], fps=10)
+    return out, report
+
+
+def test_the_export_is_a_lerobot_v3_dataset(recording, exported):
+    out, report = exported
+    ds = recording["ds"]
+    n = int(ds.lengths.sum())
+    assert (report.episodes, report.frames, report.labels, report.comparisons) == (EPISODES, n, 2 * EPISODES, 3)
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["codebase_version"] == "v3.0" and info["fps"] == 10
+    assert (info["total_episodes"], info["total_frames"], info["total_tasks"]) == (EPISODES, n, 1)
+    assert info["splits"] == {"train": f"0:{EPISODES}"}
+    features = info["features"]
+    assert list(features)[-5:] == ["timestamp", "frame_index", "episode_index", "index", "task_index"]
+    assert features["observation.state"]["shape"] == [2] and features["next.reward"]["shape"] == [1]
+    camera = features["observation.images.render"]
+    assert camera["dtype"] == "video" and camera["shape"] == [48, 64, 3]
+    assert camera["info"]["video.codec"] == "h264" and camera["info"]["video.pix_fmt"] == "yuv420p"
+    data = pq.read_table(out / "data/chunk-000/file-000.parquet")
+    assert data.schema.field("observation.state").type == pa.list_(pa.float32(), 2)  # fixed-size list
+    assert data.schema.field("action").type == pa.float32()  # shape (1,): a scalar column
+    assert data.schema.field("next.done").type == pa.bool_()
+    assert data.column("index").to_pylist() == list(range(n))
+    # the learnt rewards are the served model's, step by step from each episode's start
+    stepper = OnlineRewardModel.from_checkpoint(recording["model"])
+    first = int(ds.lengths[0])
+    np.testing.assert_allclose(data.column("next.reward").to_numpy()[:first],
+                               stepper.episode_rewards(ds.states[0, :first].astype(np.float64)), rtol=1e-5, atol=1e-6)
+    assert data.column("next.done").to_pylist()[first - 1:first + 1] == [True, False]
+    episodes = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [e["length"] for e in episodes] == ds.lengths.tolist()
+    assert episodes[1]["dataset_from_index"] == first
+    assert episodes[1]["videos/observation.images.render/from_timestamp"] == pytest.approx(first / 10)
+    assert {"stats/observation.state/q99", "stats/observation.images.render/mean", "tasks"} <= set(episodes[0])
+    stats = json.loads((out / "meta/stats.json").read_text())
+    assert set(stats["observation.state"]) == {"min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99"}
+    assert stats["observation.state"]["count"] == [n]
+    assert np.asarray(stats["observation.images.render"]["mean"]).shape == (3, 1, 1)
+    tasks = pq.read_table(out / "meta/tasks.parquet")
+    assert json.loads(tasks.schema.metadata[b"pandas"])["index_columns"] == ["task"]  # pd.read_parquet's index
+    assert "key" in tasks.column("task")[0].as_py().lower() or tasks.column("task")[0].as_py()
+    video = list(read_frames(out / "videos/observation.images.render/chunk-000/file-000.mp4"))
+    assert len(video) == n and video[first][0] == pytest.approx(first / 10)  # constant frame rate
+
+
+def test_bag_to_lerobot_to_bag_keeps_everything(recording, exported, tmp_path):
+    out, _ = exported
+    back = tmp_path / "back"
+    report = import_lerobot(out, back)
+    ds = recording["ds"]
+    assert (report.episodes, report.labels, report.comparisons) == (EPISODES, 2 * EPISODES, 3)
+    for labeller in ("oracle/key", "alice", "bob"):  # bob only compared
+        a, _ = load_bag_dataset(recording["bags"], labeller=labeller)
+        b, _ = load_bag_dataset([back], labeller=labeller)
+        for name in ("states", "final_states", "lengths", "returns", "preferences"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        assert a.meta["labels"] == b.meta["labels"]
+        assert a.meta.get("comparisons") == b.meta.get("comparisons")
+    actions, frames = {}, {}
+    for topic, type_name, _, m in iter_decoded(back):
+        if type_name == "nmrm_msgs/msg/AgentAction":
+            actions[(m.episode, m.step)] = m.action[0]
+        elif type_name == "sensor_msgs/msg/CompressedImage":
+            frames[m.header.frame_id] = m
+    assert all(actions[(i, t)] == ds.actions[i, t] for i in range(EPISODES) for t in range(ds.lengths[i]))
+    from PIL import Image
+    import io
+
+    errors = []
+    for i in range(EPISODES):
+        for t in range(int(ds.lengths[i])):
+            got = np.asarray(Image.open(io.BytesIO(frames[frame_id(i, t)].data)).convert("RGB"), np.float64)
+            errors.append(np.abs(got - _picture(i, t)).mean())
+    assert max(errors) < 4.0, max(errors)  # H.264 (crf 23) then JPEG (quality 90): mean error per pixel, of 255
+
+
+def test_anyones_dataset_needs_its_task_and_ends_at_its_last_frame(exported, tmp_path):
+    out, _ = exported
+    theirs = tmp_path / "theirs"
+    import shutil
+
+    shutil.copytree(out, theirs)
+    shutil.rmtree(theirs / "meta/nmrm")
+    with pytest.raises(LeRobotError, match="not exported by nmrm_ros: give its task"):
+        import_lerobot(theirs, tmp_path / "b0")
+    report = import_lerobot(theirs, tmp_path / "b1", task="key", episodes="0:3,5", label_key="next.reward",
+                            camera="")
+    assert (report.episodes, report.labels, report.frames) == (4, 4, 0)
+    ds, _ = load_bag_dataset([tmp_path / "b1"])
+    data = pq.read_table(theirs / "data/chunk-000/file-000.parquet")
+    first = ds.lengths[0] + 1  # the last frame is the final observation
+    np.testing.assert_allclose(ds.returns[0], data.column("next.reward").to_numpy()[:first - 1].sum(), rtol=1e-6)
+
+
+def test_bad_datasets_and_options_are_one_line_errors_and_leave_nothing(exported, recording, tmp_path):
+    out, _ = exported
+    import shutil
+
+    with pytest.raises(LeRobotError, match="exists"):
+        export_lerobot(recording["bags"], out)
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    info = json.loads((old / "meta/info.json").read_text())
+    (old / "meta/info.json").write_text(json.dumps({**info, "codebase_version": "v2.1"}))
+    with pytest.raises(LeRobotError, match="format 'v2.1'.*convert_dataset_v21_to_v30"):
+        import_lerobot(old, tmp_path / "b")
+    (old / "meta/info.json").write_text(json.dumps(info))
+    with pytest.raises(LeRobotError, match="no state feature 'observation.joints'"):
+        import_lerobot(old, tmp_path / "b", state_key="observation.joints")
+    with pytest.raises(LeRobotError, match="no episode 99"):
+        import_lerobot(old, tmp_path / "b", episodes="99")
+    (old / "data/chunk-000/file-000.parquet").write_bytes(b"not parquet at all")
+    with pytest.raises(LeRobotError, match="file-000.parquet: not a readable parquet file"):
+        import_lerobot(old, tmp_path / "b")
+    shutil.copy(out / "data/chunk-000/file-000.parquet", old / "data/chunk-000/file-000.parquet")
+    (old / "videos/observation.images.render/chunk-000/file-000.mp4").write_bytes(b"\x00" * 100)
+    with pytest.raises(LeRobotError, match="file-000.mp4: not a readable video"):
+        import_lerobot(old, tmp_path / "b")
+    with pytest.raises(LeRobotError, match="video codec must be one of h264, av1"):
+        export_lerobot(recording["bags"], tmp_path / "x", codec="vp9")
+    assert not (tmp_path / "b").exists() and not (tmp_path / "x").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".partial")]
+
+
+def test_the_commands(exported, recording, tmp_path):
+    out = tmp_path / "cli"
+    res = subprocess.run([executable("nmrm"), "export", "lerobot", "--bag", str(recording["bags"][0]),
+                          "--out", str(out), "--no-progress"], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert f"wrote {out}: {EPISODES} episodes" in res.stdout and "camera: none in the bags" in res.stdout
+    res = subprocess.run([executable("nmrm"), "import", "lerobot", str(out), "--out", str(tmp_path / "bag")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and f"{EPISODES} episodes of task key" in res.stdout, res.stderr
+    res = subprocess.run([executable("nmrm"), "import", "lerobot", str(tmp_path / "bag"), "--out", str(tmp_path / "b2")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "no meta/info.json" in res.stderr, res.stderr
