@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -25,6 +26,7 @@ from nmrm_ros.tasks.frames import encode_frame, frame_id
 from nmrm_ros.testing.graph import executable
 
 EPISODES = 6
+FIXTURES = Path(__file__).parent / "fixtures"
 
 
 def _picture(episode: int, step: int) -> np.ndarray:
@@ -156,7 +158,32 @@ def test_anyones_dataset_needs_its_task_and_ends_at_its_last_frame(exported, tmp
     ds, _ = load_bag_dataset([tmp_path / "b1"])
     data = pq.read_table(theirs / "data/chunk-000/file-000.parquet")
     first = ds.lengths[0] + 1  # the last frame is the final observation
-    np.testing.assert_allclose(ds.returns[0], data.column("next.reward").to_numpy()[:first - 1].sum(), rtol=1e-6)
+    np.testing.assert_allclose(ds.states[0, :first - 1], np.asarray(data.column("observation.state").to_pylist()[:first - 1]))
+    np.testing.assert_allclose(ds.returns[0], data.column("next.reward").to_numpy()[:first].sum(), rtol=1e-6)
+
+
+def test_a_dataset_written_by_lerobot_itself_comes_in(tmp_path):
+    """tests/fixtures/lerobot_v30_small: written by LeRobot 0.4.4's own LeRobotDataset (bench/lerobot_fixture.py;
+    AV1 video, LeRobot's statistics) in a venv of its own."""
+    from nmrm_ros.lerobot.format import aggregate_stats, column_values, feature_stats
+
+    root = FIXTURES / "lerobot_v30_small"
+    report = import_lerobot(root, tmp_path / "bag", task="key", label_key="next.reward")
+    assert (report.episodes, report.steps, report.frames, report.labels) == (3, 33, 36, 3)
+    ds, _ = load_bag_dataset([tmp_path / "bag"])
+    data = pq.read_table(root / "data/chunk-000/file-000.parquet")
+    np.testing.assert_array_equal(ds.lengths, [11, 8, 14])
+    np.testing.assert_array_equal(ds.returns, [1.0, 1.0, 1.0])  # next.reward is 1 on each episode's last frame
+    state = column_values(data, "observation.state", 2)
+    np.testing.assert_array_equal(ds.states[1, :8], state[12:20])
+    np.testing.assert_array_equal(ds.final_states[1], state[20])
+    # our statistics are LeRobot's (the quantiles: exact here, from its histogram there)
+    theirs = json.loads((root / "meta/stats.json").read_text())["observation.state"]
+    episode = data.column("episode_index").to_numpy()
+    mine = aggregate_stats([feature_stats(state[episode == e]) for e in range(3)])
+    for name in ("min", "max", "mean", "std", "count"):
+        np.testing.assert_allclose(mine[name], theirs[name], rtol=1e-6, err_msg=name)
+    np.testing.assert_allclose(mine["q50"], theirs["q50"], atol=0.05)
 
 
 def test_bad_datasets_and_options_are_one_line_errors_and_leave_nothing(exported, recording, tmp_path):

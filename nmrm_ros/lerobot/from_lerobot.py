@@ -11,7 +11,8 @@ final observations s_L, return labels with their labellers and times, and compar
 else's has no final observation after the last action: its last frame's state is taken as s_L
 (L = n - 1 steps; the last frame's action is dropped) and its task must be given (a task spec
 whose state size is the state column's). `label_key` (e.g. "next.reward") labels each episode
-with the sum of that column over its steps, from labeller "lerobot/<key>".
+with the sum of that column over all its frames (the episode's return as LeRobot keeps it: the
+last frame's reward included), from labeller "lerobot/<key>".
 
 Nothing is half-written: the bag is written beside `out` and renamed at the end; a missing key, a
 dataset of another version, a corrupt parquet or video is a one-line LeRobotError.
@@ -312,7 +313,7 @@ def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, 
                 g = np.concatenate([p["g"] for p in parts])[order]
                 bag.write_dict(topic(source, T_RET), T_RET, {
                     "header": header(t), "task": task, "episode": episode, "length": length,
-                    "return_value": float(g[:length].sum()), "labeller": f"lerobot/{label_key}"}, t)
+                    "return_value": float(g.sum()), "labeller": f"lerobot/{label_key}"}, t)
                 report.labels += 1
             t += STEP_NS
         for label in (side or {}).get("labels", []):
