@@ -228,3 +228,40 @@ def test_the_commands(exported, recording, tmp_path):
     res = subprocess.run([executable("nmrm"), "import", "lerobot", str(tmp_path / "bag"), "--out", str(tmp_path / "b2")],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "no meta/info.json" in res.stderr, res.stderr
+
+
+def test_people_label_an_imported_lerobot_dataset_on_the_page(ros_domain, tmp_path):
+    """LeRobot's own dataset -> `nmrm import lerobot` -> label_bag.launch.yaml (real replay and
+    labeller_web processes): the page lists its episodes, serves their camera frames, takes a
+    label, and the labels bag joins the imported bag for training."""
+    import re
+    import signal
+    import urllib.request
+
+    from nmrm_ros.ros.ament_paths import require_share_dir
+    from nmrm_ros.testing.graph import OutputLines
+
+    import_lerobot(FIXTURES / "lerobot_v30_small", tmp_path / "bag", task="key")
+    launch_file = require_share_dir("nmrm_ros") / "launch_scripts" / "label_bag.launch.yaml"
+    proc = subprocess.Popen([executable("nmrm"), "launch", str(launch_file), f"bag:={tmp_path / 'bag'}", "task:=key",
+                             "port:=0", f"labels_dir:={tmp_path / 'labels'}", "person:=carol"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = OutputLines(proc)
+    try:
+        url = re.search(r"(http://127\.0\.0\.1:\d+)/\?token=([\w-]+)", out.wait_for("labelling page: http"))
+        base, token = url.group(1), url.group(2)
+        out.wait_for("episode 2 (14 steps) waits for a label")
+        queue = json.loads(urllib.request.urlopen(f"{base}/api/queue?token={token}", timeout=10).read())
+        assert [e["episode"] for e in queue["episodes"]] == [0, 1, 2]
+        frame = urllib.request.urlopen(f"{base}/api/episode/1/frame/3?token={token}", timeout=10)
+        assert frame.headers["Content-Type"] == "image/jpeg" and len(frame.read()) > 100
+        request = urllib.request.Request(f"{base}/api/label", data=json.dumps({"episode": 1, "return": 4.0}).encode(),
+                                         headers={"Content-Type": "application/json", "X-Token": token,
+                                                  "Origin": base}, method="POST")
+        assert json.loads(urllib.request.urlopen(request, timeout=10).read())["return"] == 4.0
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+    labels = next(p for p in (tmp_path / "labels").iterdir() if p.name.startswith("person_carol"))
+    ds, report = load_bag_dataset([tmp_path / "bag", labels])
+    assert report.labellers == {"person/carol": 1} and ds.returns.tolist() == [4.0] and ds.lengths.tolist() == [8]
