@@ -18,7 +18,7 @@ from nmrm_ros.mil.training import train_ensemble
 
 
 def test_the_registry_is_the_list_of_architectures():
-    assert ARCHITECTURES == ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm")
+    assert ARCHITECTURES == ("instance_nn", "embedding_lstm", "instance_lstm", "csc_lstm", "transformer")
     assert ARCHITECTURE_NAMES["csc_lstm"] == "CSC Instance Space LSTM"
     with pytest.raises(ValueError, match="unknown architecture 'gru'; known: instance_nn, "):
         architecture("gru")
@@ -79,3 +79,28 @@ def test_a_new_architecture_is_one_registry_entry(monkeypatch):
     result = train_ensemble(ens, ds, [(np.arange(160), np.arange(160, 200))] * 2, cfg, progress=False)
     first, last = result.history[0]["train_loss"], result.history[-1]["train_loss"]
     assert all(b < 0.8 * a for a, b in zip(first, last)), (first, last)
+
+
+def test_the_transformer_is_causal_and_served_step_by_step_past_its_time_code():
+    """The fifth architecture: z_t sees f_0..f_t only; stepped online (keys and values cached, the
+    time code extended past its first 1024 steps) it equals the batched forward; it serves z_t,
+    k values in [-1, 1], whatever the served kind."""
+    config = model_config("transformer", "key", 2)
+    assert config.hidden_size == 8  # at least 8 wide, whatever the task's LSTM size
+    ens = init_ensemble(config, [0, 1]).eval()
+    states = np.random.default_rng(1).normal(size=(1100, 2)).astype(np.float32)
+    with torch.no_grad():
+        full = ens(torch.as_tensor(states)[None], torch.tensor([1100]))
+        changed = states.copy()
+        changed[600:] += 5.0  # the future changes: the past does not
+        other = ens(torch.as_tensor(changed)[None], torch.tensor([1100]))
+    torch.testing.assert_close(other.rewards[..., :600], full.rewards[..., :600])
+    assert not torch.allclose(other.rewards[..., 600:], full.rewards[..., 600:])
+    rewards, served = batched_reference(ens, states)
+    for kind in ("h_tanh_c", "h"):
+        online = OnlineRewardModel(ens, served=kind)
+        assert online.served_size == 8
+        stepped = [online.step(s) for s in states]
+        np.testing.assert_allclose([r for r, _ in stepped], rewards, atol=1e-4)
+        np.testing.assert_allclose(np.stack([h for _, h in stepped]), served, atol=1e-4)
+    assert served.shape == (1100, 8) and np.abs(served).max() <= 1.0

@@ -16,7 +16,7 @@ def train(
     data: Path = typer.Option(None, help="a dataset .npz (from `nmrm dataset ...`)"),
     bag: list[Path] = typer.Option(None, help="bag(s) of recorded episodes (repeatable)"),
     labeller: str = typer.Option(None, help="with --bag: whose labels to use if several labelled"),
-    arch: str = typer.Option("csc_lstm", help="instance_nn | embedding_lstm | instance_lstm | csc_lstm"),
+    arch: str = typer.Option("csc_lstm", help="instance_nn | embedding_lstm | instance_lstm | csc_lstm | transformer"),
     out: Path = typer.Option(Path("runs/model"), help="checkpoint path (writes OUT.pt and OUT.json)",
                              callback=writable_file),
     n: int = typer.Option(5000, min=1, help="trajectories to generate (without --data)"),

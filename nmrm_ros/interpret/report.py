@@ -69,10 +69,10 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
     arch = model.config.architecture
     members = model.members
     figures: list = []
-    uses_lstm = model.uses_lstm
+    has_memory = model.hidden_size > 0  # an LSTM's h' or a transformer's z
 
     states, lengths, described = _trajectories(task, bag, n, seed)
-    if uses_lstm:
+    if has_memory:
         emb = hidden_embedding(model, task, states, lengths)
         figures.append(Figure("Hidden-state embedding", plots.embedding_figure(
             emb, task, f"{name} ({arch}) on {task}", out / "hidden_embedding.png"),

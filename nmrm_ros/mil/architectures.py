@@ -2,10 +2,11 @@
 of every architecture's forward (paper Sec. 3.2, App. C.2, D.3, D.4), in a registry.
 
 Every model is: inputs -> feature extractor (FC + ReLU layers: `fe_sizes`) -> per-instance
-features f_t (F) -> [LSTM: hidden states h'_{t+1} (k)] -> head (FC layers to 1) -> per-step
-outputs y_t -> rewards and the bag's return. An `Architecture` says the parts in between:
+features f_t (F) -> [a temporal module: hidden states h'_{t+1} (k)] -> head (FC layers to 1) ->
+per-step outputs y_t -> rewards and the bag's return. An `Architecture` says the parts in between:
 
-- `uses_lstm`: whether there is an LSTM (k = 0 without one);
+- `uses_lstm` / `uses_attention`: the temporal module, an LSTM or causal self-attention
+  (`CausalAttention` in models.py: h'_{t+1} is then its output z_t); neither: k = 0;
 - `head_input(f, h)`: what the head sees at step t (f_t, h'_{t+1} or [f_t, h'_{t+1}]);
 - `outputs(y, mask, lengths)`: the batched rule from the head's outputs y (..., T) to
   (returns (...), rewards (..., T)) — used by training, evaluation and the served state;
@@ -44,6 +45,10 @@ class Architecture:
     name = "instance_nn"
     title = "Instance Space NN"
     uses_lstm = False
+    uses_attention = False
+    #: the smallest temporal width k the architecture is built with (a config's hidden_size below
+    #: it is raised to it)
+    min_hidden_size = 1
     #: r_t is the head's output y_t (so an affine map of the head's last layer maps the rewards:
     #: `mil.calibration`); False where rewards are differences of the head's outputs
     reward_is_head_output = True
@@ -115,9 +120,47 @@ class EmbeddingSpaceLSTM(InstanceSpaceLSTM):
         return y - carry, y
 
 
-#: name -> architecture, in the paper's order (the Markovian baseline first)
+class CausalTransformer(Architecture):
+    """r_t = HN([FE(x_t), z_t]), z_t the output of one causal self-attention layer over the
+    features f_0..f_t (the Preference Transformer's idea, Kim et al. 2023, in the CSC form; not
+    in the paper): x_t = W_in f_t + b_in + P(t), a_t = sum_{j <= t} softmax_j(q_t . k_j / sqrt(k)) v_j
+    with q, k, v = W_q x, W_k x, W_v x, and z_t = tanh(x_t + W_o a_t + b_o). P(t) is a sinusoidal
+    code of the step (`time_code`). The served state is z_t (k values in [-1, 1]); online, the
+    keys and values of the episode so far are kept (a cache: O(t k) per step). k is at least 8,
+    so that the time code resolves ~1000 steps."""
+
+    name = "transformer"
+    title = "Causal Transformer (CSC)"
+    uses_attention = True
+    min_hidden_size = 8
+
+    def head_input_size(self, feature_size: int, hidden_size: int) -> int:
+        return feature_size + hidden_size
+
+    def head_input(self, features, hidden):
+        return _cat(features, hidden)
+
+
+#: name -> architecture, in the paper's order (the Markovian baseline first), then ours
 REGISTRY: dict = {a.name: a for a in (Architecture(), EmbeddingSpaceLSTM(), InstanceSpaceLSTM(),
-                                       CSCInstanceSpaceLSTM())}
+                                       CSCInstanceSpaceLSTM(), CausalTransformer())}
+
+
+def time_code(steps: int, width: int) -> np.ndarray:
+    """The sinusoidal code P(t) of steps t = 0..steps-1, (steps, width) float64: P[t, 2i] =
+    sin(t / 10000^(2i / width)), P[t, 2i + 1] = cos(the same) (Vaswani et al. 2017)."""
+    t = np.arange(steps, dtype=np.float64)[:, None]
+    i = np.arange(width)[None, :]
+    angle = t / np.power(10000.0, (i - i % 2) / width)
+    return np.where(i % 2 == 0, np.sin(angle), np.cos(angle))
+
+
+def attention_step(x: np.ndarray, keys: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """a_t of one query per member: x (..., k) queries, keys / values (..., t + 1, k) of the steps
+    so far -> (..., k), softmax over the steps (NumPy; the online stepper's)."""
+    scores = np.einsum("...d,...td->...t", x, keys) / np.sqrt(x.shape[-1])
+    scores = np.exp(scores - scores.max(axis=-1, keepdims=True))
+    return np.einsum("...t,...td->...d", scores / scores.sum(axis=-1, keepdims=True), values)
 
 
 def architecture(name: str) -> Architecture:

@@ -50,6 +50,7 @@ class MILEnsemble(nn.Module):
         template = build_model(config)
         self.rule = template.rule  # the architecture's rule: architectures.REGISTRY
         self.uses_lstm = template.uses_lstm
+        self.uses_attention = template.uses_attention
         self.hidden_size = template.hidden_size
         self.params = nn.ParameterDict({
             _key(name): nn.Parameter(p.detach().unsqueeze(0).repeat(members, *([1] * p.dim())))
@@ -191,6 +192,24 @@ class MILEnsemble(nn.Module):
                                True, 1, 0.0, self.training, False, True)
         return out.view(B, T, K, k).permute(2, 0, 1, 3)
 
+    def _attention(self, f: torch.Tensor) -> torch.Tensor:
+        """(K, B, T, F) features -> (K, B, T, k) outputs z_t of each member's causal attention
+        (`models.CausalAttention`), as batched products over the members."""
+        from .architectures import time_code
+
+        K, B, T, F = f.shape
+        k = self.hidden_size
+        p = {name: self._p(f"attention__{name}") for name in
+             ("inp__weight", "inp__bias", "query__weight", "key__weight", "value__weight", "out__weight", "out__bias")}
+        x = torch.baddbmm(p["inp__bias"].unsqueeze(1), f.reshape(K, B * T, F), p["inp__weight"].transpose(1, 2))
+        x = (x.view(K, B, T, k) + torch.as_tensor(time_code(T, k), dtype=f.dtype)).reshape(K, B * T, k)
+        q, key, v = (torch.bmm(x, p[f"{n}__weight"].transpose(1, 2)).view(K * B, T, k) for n in ("query", "key", "value"))
+        scores = (q @ key.transpose(1, 2) / k ** 0.5).masked_fill(torch.ones(T, T, dtype=torch.bool).triu(1),
+                                                                 float("-inf"))
+        a = (torch.softmax(scores, dim=-1) @ v).view(K, B * T, k)
+        z = torch.tanh(x + torch.baddbmm(p["out__bias"].unsqueeze(1), a, p["out__weight"].transpose(1, 2)))
+        return z.view(K, B, T, k)
+
     def forward(self, x: torch.Tensor, lengths: torch.Tensor, members: torch.Tensor | None = None) -> MILOutput:
         """members: indices (K',) of the members to compute (None: all); the others cost nothing
         (training leaves out the members that are done)."""
@@ -214,7 +233,8 @@ class MILEnsemble(nn.Module):
         K, B, T, d = x.shape
         mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
         f = self._features(x.reshape(K, B * T, d))
-        hidden = self._lstm(f.view(K, B, T, -1)) if self.uses_lstm else None  # (K, B, T, k)
+        hidden = (self._lstm(f.view(K, B, T, -1)) if self.uses_lstm
+                  else self._attention(f.view(K, B, T, -1)) if self.uses_attention else None)  # (K, B, T, k)
         flat_hidden = None if hidden is None else hidden.reshape(K, B * T, -1)
         y = self._head_out(self.rule.head_input(f, flat_hidden)).view(K, B, T)
         returns, rewards = self.rule.outputs(y, mask, lengths)
@@ -226,12 +246,17 @@ class MILEnsemble(nn.Module):
         """The weights by part, detached: {"feature_extractor": [(W (K, out, in), b (K, out)), ...],
         "head": [...], and with an LSTM "lstm": {"weight_ih" (K, 4k, F), "weight_hh" (K, 4k, k),
         "bias_ih", "bias_hh" (K, 4k), "h0", "c0" (K, k)}} (torch's gate order [i | f | g | o]);
+        with attention "attention": {"inp" (K, k, F), "query", "key", "value", "out" (K, k, k),
+        "inp_bias", "out_bias" (K, k)};
         `member`: that member's only, without the member axis."""
         pick = (lambda t: t.detach()) if member is None else (lambda t: t.detach()[member])
         p = self.params
         out = {part: [(pick(p[_key(f"{part}.{n}.weight")]), pick(p[_key(f"{part}.{n}.bias")]))
                       for n in names]
                for part, names in (("feature_extractor", self._fe), ("head", self._head))}
+        if self.uses_attention:
+            out["attention"] = {name: pick(p[f"attention__{name}__weight"]) for name in ("inp", "query", "key", "value", "out")}
+            out["attention"].update({f"{name}_bias": pick(p[f"attention__{name}__bias"]) for name in ("inp", "out")})
         if self.uses_lstm:
             out["lstm"] = {name: pick(p[key]) for name, key in (
                 ("weight_ih", "lstm__weight_ih_l0"), ("weight_hh", "lstm__weight_hh_l0"),

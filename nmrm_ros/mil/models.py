@@ -38,7 +38,7 @@ class ModelConfig:
     fe_sizes: feature extractor layer widths (FC + ReLU + dropout each); head_sizes: head hidden
     widths (FC + ReLU + dropout each) before the final FC to 1; output_activation: one of
     OUTPUT_ACTIVATIONS ("leaky_relu": slope 1e-6, the paper's for Lunar Lander); hidden_size: LSTM
-    state size (paper: 2).
+    state size (paper: 2), or the attention width of the transformer.
     """
 
     architecture: str
@@ -119,6 +119,28 @@ def _mlp(sizes: list, dropout: float, final_linear: bool) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
+class CausalAttention(nn.Module):
+    """One causal self-attention layer over a bag's features (the transformer architecture,
+    `architectures.CausalTransformer`): (B, T, F) -> z (B, T, k), z_t seeing f_0..f_t only."""
+
+    def __init__(self, feature_size: int, width: int) -> None:
+        super().__init__()
+        self.inp = nn.Linear(feature_size, width)
+        self.query = nn.Linear(width, width, bias=False)
+        self.key = nn.Linear(width, width, bias=False)
+        self.value = nn.Linear(width, width, bias=False)
+        self.out = nn.Linear(width, width)
+
+    def forward(self, f: torch.Tensor) -> torch.Tensor:
+        from .architectures import time_code
+
+        t, k = f.shape[1], self.inp.out_features
+        x = self.inp(f) + torch.as_tensor(time_code(t, k), dtype=f.dtype)
+        scores = self.query(x) @ self.key(x).transpose(1, 2) / k ** 0.5  # (B, T, T)
+        scores = scores.masked_fill(torch.ones(t, t, dtype=torch.bool).triu(1), float("-inf"))
+        return torch.tanh(x + self.out(torch.softmax(scores, dim=-1) @ self.value(x)))
+
+
 class MILRewardModel(nn.Module):
     """One member of any architecture: normalisation buffers, feature extractor, [LSTM,] head;
     the architecture's rule from `architectures.REGISTRY`. The package computes with
@@ -130,6 +152,7 @@ class MILRewardModel(nn.Module):
         self.config = config
         self.rule = architecture(config.architecture)  # what the head sees, its outputs' rule
         self.uses_lstm = self.rule.uses_lstm
+        self.uses_attention = self.rule.uses_attention
         self.register_buffer("input_shift", torch.zeros(config.input_size))
         self.register_buffer("input_scale", torch.ones(config.input_size))
         self.register_buffer("return_scale", torch.ones(()))
@@ -139,6 +162,8 @@ class MILRewardModel(nn.Module):
             self.lstm = nn.LSTM(self.feature_size, config.hidden_size, batch_first=True)
             self.h0 = nn.Parameter(torch.zeros(config.hidden_size))
             self.c0 = nn.Parameter(torch.zeros(config.hidden_size))
+        if self.uses_attention:
+            self.attention = CausalAttention(self.feature_size, config.hidden_size)
         self.head = _mlp([self.head_input_size, *config.head_sizes, 1], config.dropout, True)
 
     @property
@@ -147,7 +172,7 @@ class MILRewardModel(nn.Module):
 
     @property
     def hidden_size(self) -> int:
-        return self.config.hidden_size if self.uses_lstm else 0
+        return self.config.hidden_size if self.uses_lstm or self.uses_attention else 0
 
     def set_normalisation(self, shift: torch.Tensor, scale: torch.Tensor,
                           return_scale: float = 1.0) -> None:
@@ -172,7 +197,8 @@ class MILRewardModel(nn.Module):
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
         mask = (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).to(x.dtype)
         features = self._features(x)
-        hidden = self._lstm(features) if self.uses_lstm else None
+        hidden = (self._lstm(features) if self.uses_lstm
+                  else self.attention(features) if self.uses_attention else None)
         y = self._head(self.rule.head_input(features, hidden))
         returns, rewards = self.rule.outputs(y, mask, lengths)
         if hidden is None:
@@ -204,6 +230,7 @@ def model_config(architecture: str, task: str, input_size: int, dropout: float =
             raise ValueError(f"unknown output activation {output_activation!r}; use one of "
                              f"{', '.join(OUTPUT_ACTIVATIONS)}")
         sizes["output_activation"] = output_activation
+    hidden_size = max(int(hidden_size), REGISTRY[architecture].min_hidden_size)
     return ModelConfig(architecture=architecture, input_size=input_size, hidden_size=hidden_size,
                        dropout=dropout, **sizes)
 

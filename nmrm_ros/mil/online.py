@@ -61,8 +61,15 @@ class OnlineRewardModel:
         self.fe = [(_arrays(w), _arrays(b)) for w, b in layers["feature_extractor"]]
         self.head = [(_arrays(w), _arrays(b)) for w, b in layers["head"]]
         self.uses_lstm = ens.uses_lstm
-        self.k = ens.hidden_size  # the LSTM's hidden size (0: no LSTM)
-        self.served_size = served_size(self.k, served)
+        self.uses_attention = ens.uses_attention
+        self.k = ens.hidden_size  # the LSTM's hidden size or the attention's width (0: neither)
+        self.served_size = served_size(self.k, served, attention=self.uses_attention)
+        if self.uses_attention:
+            from .architectures import time_code
+
+            a = {n: _arrays(v) for n, v in layers["attention"].items()}
+            self.att = a  # inp (K, k, F), query / key / value / out (K, k, k), inp_bias / out_bias (K, k)
+            self._time_code = time_code(1024, self.k)  # P(t), extended when an episode is longer
         if self.uses_lstm:
             p = {n: _arrays(v) for n, v in layers["lstm"].items()}
             self.w_ih = p["weight_ih"]  # (K, 4k, F)
@@ -104,6 +111,10 @@ class OnlineRewardModel:
             self.states_h = self.h0.copy()
             self.states_c = self.c0.copy()
             self._serve()
+        elif self.uses_attention:
+            shape = (0, self.k) if K == 1 else (K, 0, self.k)
+            self.keys, self.values = np.zeros(shape), np.zeros(shape)  # the episode's so far
+            self.hidden = np.zeros(self.k)  # no step yet: z of nothing
         else:
             self.hidden = np.zeros(0)
         shape = () if K == 1 else (K,)
@@ -157,8 +168,10 @@ class OnlineRewardModel:
         if not np.all(np.isfinite(x)):
             raise ValueError("state contains NaN or inf")
         f = self._fe(x)  # (K, F)
-        self.t += 1
         hidden = None
+        if self.uses_attention:
+            hidden = self._attend(f)
+        self.t += 1
         if self.uses_lstm:
             gates = self._apply(self.w_ih, self.bias, f) + self._apply(self.w_hh, None, self.states_h)
             self.states_h, self.states_c = lstm_cell(gates, self.states_c)
@@ -173,6 +186,23 @@ class OnlineRewardModel:
         self.reward_std = float(rewards.std())
         self.return_std = float(self.partial_returns.std())
         return float(rewards.mean()), self.hidden.copy()
+
+    def _attend(self, f: np.ndarray) -> np.ndarray:
+        """One step of each member's causal attention (`models.CausalAttention`): z_t (K, k) from
+        f_t (K, F), the step's key and value appended to the episode's; sets `hidden`."""
+        from .architectures import attention_step, time_code
+
+        a = self.att
+        if self.t >= len(self._time_code):
+            self._time_code = time_code(2 * self.t, self.k)
+        x = self._apply(a["inp"], a["inp_bias"], f) + self._time_code[self.t]
+        axis = -2
+        self.keys = np.concatenate([self.keys, self._apply(a["key"], None, x)[..., None, :]], axis=axis)
+        self.values = np.concatenate([self.values, self._apply(a["value"], None, x)[..., None, :]], axis=axis)
+        z = np.tanh(x + self._apply(a["out"], a["out_bias"], attention_step(self._apply(a["query"], None, x),
+                                                                           self.keys, self.values)))
+        self.hidden = z if self.members == 1 else z[self.serving]
+        return z
 
     def episode_rewards(self, states: np.ndarray) -> np.ndarray:
         """r'_t (the members' mean) of a whole episode of states (L, d), stepped as served from a

@@ -16,7 +16,8 @@ Markovian. It keeps every input of the agent's network in [-1, 1]; c' itself is 
 Key model one unit reaches 37 while the others stay within +-2), and agents observing raw c'
 learnt worse greedy policies (bench/results/served_state_agents_*.txt). `"h_c"` serves the raw
 [h', c']; `"h"` h'_{t+1} only (the paper's choice; for comparisons and for agents trained
-before this change). The Instance Space NN has no recurrent state: it serves nothing (size 0).
+before this change). The Instance Space NN has no recurrent state: it serves nothing (size 0). The
+transformer (`architectures.CausalTransformer`) serves its attention output z_t whatever the kind.
 
 `served_states(model, states)` computes the served states of whole trajectories from the batched
 forward (h' from the model, c' by the LSTM's cell recursion on those h'); the online stepper
@@ -40,8 +41,12 @@ def check_served_state(kind: str) -> str:
     return kind
 
 
-def served_size(hidden_size: int, kind: str = DEFAULT_SERVED_STATE) -> int:
-    """Size of the served state of a model with LSTM hidden size `hidden_size` (0: no LSTM)."""
+def served_size(hidden_size: int, kind: str = DEFAULT_SERVED_STATE, attention: bool = False) -> int:
+    """Size of the served state of a model with LSTM hidden size `hidden_size` (0: no LSTM); a
+    transformer (`attention`) serves its attention output z_t, `hidden_size` values, whatever the kind."""
+    if attention:
+        check_served_state(kind)
+        return hidden_size
     return hidden_size if check_served_state(kind) == "h" else 2 * hidden_size
 
 
@@ -60,10 +65,10 @@ def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
     x = torch.as_tensor(np.asarray(states, np.float32))
     n, t = x.shape[:2]
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
-    if not serving.uses_lstm:
+    if not (serving.uses_lstm or serving.uses_attention):
         return np.zeros((n, t, 0))
     h = serving(x, lens).hidden[0].double().numpy()  # (N, T, k) h'_{t+1}, zero beyond each length
-    if kind == "h":
+    if kind == "h" or serving.uses_attention:  # a transformer serves its attention output z_t
         return h
     lstm = {name: v.double().numpy() for name, v in serving.layers(0)["lstm"].items()}
     f = serving._features(x[None].reshape(1, n * t, -1))[0].double().numpy().reshape(n, t, -1)

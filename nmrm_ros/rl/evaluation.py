@@ -99,7 +99,7 @@ def served_state_of(model, task: str, checkpoint, meta: dict) -> str:
     k = reward_model.hidden_size
     extra = model.observation_space.shape[0] - task_info(task).state_size
     own = checkpoint_meta.served_state
-    if extra == served_size(k, own):
+    if extra == served_size(k, own, attention=reward_model.uses_attention):
         return own
     if extra == 2 * k:
         return "h_c"
