@@ -58,6 +58,11 @@ CASES = {
     (("labels", "import"), "--file"): (IN, "labels import --file {P} --out {T}/b"),
     (("labels", "import"), "--out"): (OUT, "labels import --file {L} --out {P}"),
     (("tls", "cert"), "--out"): (OUT, "tls cert --host lab-pc --out {P}"),
+    (("export", "lerobot"), "--bag"): (IN, "export lerobot --bag {P} --out {T}/b"),
+    (("export", "lerobot"), "--checkpoint"): (IN, "export lerobot --bag {B} --checkpoint {P} --out {T}/b"),
+    (("export", "lerobot"), "--out"): (OUT, "export lerobot --bag {B} --out {P}"),
+    (("import", "lerobot"), "dataset"): (IN, "import lerobot {P} --out {T}/b"),
+    (("import", "lerobot"), "--out"): (OUT, "import lerobot {D} --task key --out {P}"),
 }
 BAD_INPUTS = ("missing", "text file", "empty directory")
 BAD_OUTPUTS = ("under a file", "not creatable")
@@ -109,8 +114,10 @@ def _alarm(*_):
 def test_a_wrong_path_is_a_one_line_error_before_any_work(tmp_path, good, key, what):
     _, template = CASES[key]
     path = bad_path(tmp_path, what)
+    root = Path(__file__).resolve().parents[1]
     argv = template.format(P=path, T=tmp_path, C=good / "m", Z=good / "agent" / "policy.zip",
-                           L=good / "labels.jsonl").split()
+                           L=good / "labels.jsonl", B=root / "bags" / "key_screened",
+                           D=root / "tests" / "fixtures" / "lerobot_v30_small").split()
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(60)
     try:

@@ -212,6 +212,23 @@ def test_bad_datasets_and_options_are_one_line_errors_and_leave_nothing(exported
         import_lerobot(old, tmp_path / "b")
     with pytest.raises(LeRobotError, match="video codec must be one of h264, av1"):
         export_lerobot(recording["bags"], tmp_path / "x", codec="vp9")
+    with pytest.raises(LeRobotError, match="episode 0 of task key .* is in both .*rec and .*rec2: export the "
+                                           "recordings separately"):
+        shutil.copytree(recording["bags"][0], tmp_path / "rec2")
+        export_lerobot([recording["bags"][0], tmp_path / "rec2"], tmp_path / "x")
+    shutil.rmtree(tmp_path / "rec2")
+    # a label column with a missing value: that episode stays unlabelled, the others are labelled
+    gappy = tmp_path / "gappy"
+    shutil.copytree(out, gappy)
+    shutil.rmtree(gappy / "meta/nmrm")
+    data = pq.read_table(gappy / "data/chunk-000/file-000.parquet")
+    reward = data.column("next.reward").to_numpy().copy()
+    reward[3] = np.nan  # a step of episode 0
+    i = data.column_names.index("next.reward")
+    pq.write_table(data.set_column(i, "next.reward", pa.array(reward, pa.float32())),
+                   gappy / "data/chunk-000/file-000.parquet")
+    report = import_lerobot(gappy, tmp_path / "g", task="key", label_key="next.reward", camera="")
+    assert (report.labels, report.unlabelled) == (EPISODES - 1, 1) and "1 episodes left unlabelled" in str(report)
     assert not (tmp_path / "b").exists() and not (tmp_path / "x").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".partial")]
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from .app import app
-from .common import TASK_HELP
+from .common import TASK_HELP, writable_dir
 
 export_app = typer.Typer(help="Write bags in another format.", no_args_is_help=True)
 import_app = typer.Typer(help="Read another format into a bag.", no_args_is_help=True)
@@ -18,7 +18,7 @@ app.add_typer(import_app, name="import")
 @export_app.command("lerobot")
 def export_lerobot(
     bag: list[Path] = typer.Option(..., "--bag", help="a recording or labels bag (repeat: --bag B --bag LABELS)"),
-    out: Path = typer.Option(..., help="the new dataset directory (must not exist)"),
+    out: Path = typer.Option(..., callback=writable_dir, help="the new dataset directory (must not exist)"),
     checkpoint: Path | None = typer.Option(None, help="a reward model of the task: its r'_t as next.reward "
                                                       "and its served state as observation.reward_model_state"),
     task: str | None = typer.Option(None, help=f"the task to export where the bags hold several ({TASK_HELP})"),
@@ -36,7 +36,7 @@ def export_lerobot(
 @import_app.command("lerobot")
 def import_lerobot(
     dataset: Path = typer.Argument(..., help="a LeRobot v3.0 dataset directory (the one holding meta/info.json)"),
-    out: Path = typer.Option(..., help="the new bag directory (must not exist)"),
+    out: Path = typer.Option(..., callback=writable_dir, help="the new bag directory (must not exist)"),
     task: str | None = typer.Option(None, help="the task of a dataset not exported by nmrm_ros: a task spec "
                                                "whose state size is the state feature's"),
     state: str = typer.Option("observation.state", help="the state feature"),

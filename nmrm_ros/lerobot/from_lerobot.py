@@ -43,11 +43,14 @@ class ImportReport:
     comparisons: int = 0
     seconds: float = 0.0
     note: str = ""
+    unlabelled: int = 0  # --label: episodes whose label column has a missing or NaN value
 
     def __str__(self) -> str:
         return (f"wrote {self.out}: {self.episodes} episodes of task {self.task} ({self.steps} steps, "
                 f"{self.frames} frames), {self.labels} return labels, {self.comparisons} comparisons in "
-                f"{self.seconds:.1f} s" + (f"; {self.note}" if self.note else ""))
+                f"{self.seconds:.1f} s" + (f"; {self.unlabelled} episodes left unlabelled (a missing or NaN "
+                                           f"value in the label column)" if self.unlabelled else "")
+                + (f"; {self.note}" if self.note else ""))
 
 
 def parse_episodes(text: str | None, total: int) -> list | None:
@@ -94,6 +97,9 @@ def _episode_rows(root: Path) -> list:
     rows = []
     for f in files:
         rows.extend(read_parquet(f).to_pylist())
+    missing = [c for c in ("episode_index", "length") if rows and c not in rows[0]]
+    if missing:
+        raise LeRobotError(f"{files[0]}: no {missing[0]!r} column")
     rows.sort(key=lambda r: int(r["episode_index"]))
     return rows
 
@@ -139,16 +145,19 @@ def _jpeg(rgb: np.ndarray) -> bytes:
 
 def _image_column(table, camera: str) -> list:
     """Encoded frames (PNG/JPEG bytes, re-encoded as JPEG) of an image feature, one per row."""
-    from PIL import Image
+    from PIL import Image, UnidentifiedImageError
 
     out = []
-    for cell in table.column(camera).to_pylist():
+    for row, cell in enumerate(table.column(camera).to_pylist()):
         data = cell.get("bytes") if isinstance(cell, dict) else None
         if not data:
             raise LeRobotError(f"image feature {camera!r}: a frame without its bytes (images kept as files "
                                f"are not read)")
-        with Image.open(io.BytesIO(data)) as image:
-            out.append(_jpeg(np.asarray(image.convert("RGB"))))
+        try:
+            with Image.open(io.BytesIO(data)) as image:
+                out.append(_jpeg(np.asarray(image.convert("RGB"))))
+        except (UnidentifiedImageError, OSError) as exc:
+            raise LeRobotError(f"image feature {camera!r}: frame {row} of a data file is not an image ({exc})") from None
     return out
 
 
@@ -169,7 +178,14 @@ def import_lerobot(root: str | Path, out: str | Path, task: str | None = None,
         raise LeRobotError(f"{out} exists: give a new bag directory (nothing is overwritten)")
     info = read_info(root)
     ours_path = root / NMRM_DIR / "info.json"
-    ours = json.loads(ours_path.read_text()) if ours_path.is_file() else None
+    ours = None
+    if ours_path.is_file():
+        try:
+            ours = json.loads(ours_path.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise LeRobotError(f"{ours_path}: not JSON ({exc})") from None
+        if not isinstance(ours, dict):
+            raise LeRobotError(f"{ours_path}: not a table of nmrm_ros export facts")
     width = _width(_feature(info, state_key, "state"), state_key)
     if action_key and action_key not in info["features"]:
         if action_key != "action":  # asked for by name
@@ -193,7 +209,8 @@ def import_lerobot(root: str | Path, out: str | Path, task: str | None = None,
 
     rows = _episode_rows(root)
     if len(rows) != int(info["total_episodes"]) or [int(r["episode_index"]) for r in rows] != list(range(len(rows))):
-        raise LeRobotError(f"meta/episodes lists episodes {len(rows)} rows, not 0..{int(info['total_episodes']) - 1}")
+        raise LeRobotError(f"meta/episodes lists {len(rows)} episodes, not episodes 0..{int(info['total_episodes']) - 1} "
+                           f"as meta/info.json says")
     chosen = parse_episodes(episodes, len(rows))
     wanted = set(range(len(rows))) if chosen is None else set(chosen)
     data_files = sorted((root / "data").glob("*/*.parquet"))
@@ -309,8 +326,10 @@ def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, 
                         "action": [float(x) for x in a[step]]}, t + 1)
                 t += STEP_NS
             report.steps += length
-            if label_key:
-                g = np.concatenate([p["g"] for p in parts])[order]
+            g = np.concatenate([p["g"] for p in parts])[order] if label_key else None
+            if g is not None and not np.all(np.isfinite(g)):
+                report.unlabelled += 1  # a missing or NaN reward: no return label
+            elif g is not None:
                 bag.write_dict(topic(source, T_RET), T_RET, {
                     "header": header(t), "task": task, "episode": episode, "length": length,
                     "return_value": float(g.sum()), "labeller": f"lerobot/{label_key}"}, t)

@@ -70,16 +70,20 @@ class _Episode:
 
 
 def _read_bags(paths: list):
-    """Episodes by (source, task, episode), return labels and comparisons of every bag."""
+    """Episodes by (source, task, episode), return labels and comparisons of every bag. A bag with
+    observations is a recording; actions and frames in other bags join the recording's episode of
+    the same (source, episode), as labels-only bags join in `load_bag_dataset`. Two recordings
+    holding one episode are an error (they would be merged)."""
     from ..bags.episodes import T_ACT, T_OBS, T_PREF, T_RET
     from ..bags.reader import iter_decoded
     from ..bags.schemas import split_topic
     from ..tasks.frames import parse_frame_id
 
-    episodes: dict = {}
-    actions, frames = defaultdict(dict), defaultdict(dict)
+    recordings, others = [], []
     labels, comparisons = [], []
     for path in paths:
+        episodes: dict = {}
+        actions, frames = defaultdict(dict), defaultdict(dict)
         for topic, type_name, log_ns, m in iter_decoded(path):
             try:
                 source = split_topic(topic)[0]
@@ -100,9 +104,29 @@ def _read_bags(paths: list):
                 labels.append((source, m))
             elif type_name == T_PREF:
                 comparisons.append((source, m))
-    for (source, _, e), ep in episodes.items():
-        ep.actions = actions.get((source, e), {})
-        ep.frames = frames.get((source, e), {})
+        (recordings if episodes else others).append((path, episodes, actions, frames))
+    owner, episodes = {}, {}
+    for path, eps, actions, frames in recordings:
+        for key, ep in eps.items():
+            if key in owner:
+                raise LeRobotError(f"episode {key[2]} of task {key[1]} (source {key[0] or '/'}) is in both "
+                                   f"{owner[key]} and {path}: export the recordings separately")
+            owner[key] = path
+            ep.actions = actions.get((key[0], key[2]), {})
+            ep.frames = frames.get((key[0], key[2]), {})
+            episodes[key] = ep
+    by_id = defaultdict(list)
+    for key in episodes:
+        by_id[(key[0], key[2])].append(key)
+    for path, _, actions, frames in others:
+        for table, what in ((actions, "actions"), (frames, "frames")):
+            for (source, e), steps in table.items():
+                keys = by_id.get((source, e), [])
+                if len(keys) > 1:
+                    raise LeRobotError(f"{path}: {what} of episode {e} (source {source or '/'}) would join "
+                                       f"episodes of several tasks; export one task's bags at a time")
+                for key in keys:
+                    getattr(episodes[key], what).update(steps)
     return episodes, labels, comparisons
 
 
@@ -120,11 +144,14 @@ def _usable(ep: _Episode, state_size: int) -> str:
     return ""
 
 
-def _decode(fmt_data: tuple) -> np.ndarray:
-    from PIL import Image
+def _decode(fmt_data: tuple, where: str) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
 
-    with Image.open(io.BytesIO(fmt_data[1])) as image:
-        return np.asarray(image.convert("RGB"))
+    try:
+        with Image.open(io.BytesIO(fmt_data[1])) as image:
+            return np.asarray(image.convert("RGB"))
+    except (UnidentifiedImageError, OSError) as exc:
+        raise LeRobotError(f"{where}: a rendered frame that is not an image ({exc})") from None
 
 
 def _fps(episodes: list) -> int:
@@ -153,6 +180,18 @@ def export_lerobot(bags: list, out: str | Path, checkpoint: str | Path | None = 
         raise LeRobotError(f"{out} exists: give a new directory (nothing is overwritten)")
     if fps is not None and int(fps) < 1:
         raise LeRobotError(f"fps must be at least 1, got {fps}")
+    from .video import CODECS
+
+    if codec not in CODECS:
+        raise LeRobotError(f"video codec must be one of {', '.join(CODECS)}, got {codec!r}")
+    model = None
+    if checkpoint is not None:  # before the bags are read: a wrong checkpoint costs nothing
+        from ..mil import CheckpointError, OnlineRewardModel
+
+        try:
+            model = OnlineRewardModel.from_checkpoint(checkpoint, task=task, served=served)
+        except (CheckpointError, ValueError, OSError) as exc:
+            raise LeRobotError(f"checkpoint {checkpoint}: {exc}") from None
     episodes, labels, comparisons = _read_bags([Path(b) for b in bags])
     if not episodes:
         raise LeRobotError(f"no EnvObservation messages in {', '.join(map(str, bags))}")
@@ -180,18 +219,15 @@ def export_lerobot(bags: list, out: str | Path, checkpoint: str | Path | None = 
     action_size = len(chosen[0].actions[0]) if with_actions else 0
     if with_actions and any(len(ep.actions[t]) != action_size for ep, n in zip(chosen, lengths) for t in range(n)):
         raise LeRobotError("the episodes' actions are not all of one size")
+    if not with_actions and any(ep.actions for ep in chosen):
+        report.skipped["actions_of_some_steps_missing (no action column)"] += 1
     with_frames = all(all(t in ep.frames for t in range(n)) for ep, n in zip(chosen, lengths))
     some_frames = any(ep.frames for ep in chosen)
     report.camera = (f"{CAMERA} ({codec} video)" if with_frames else
                      "none: some exported steps have no rendered frame" if some_frames else "none in the bags")
-    model = None
-    if checkpoint is not None:
-        from ..mil import CheckpointError, OnlineRewardModel
-
-        try:
-            model = OnlineRewardModel.from_checkpoint(checkpoint, task=task, served=served, state_size=info.state_size)
-        except (CheckpointError, ValueError, OSError) as exc:
-            raise LeRobotError(f"checkpoint {checkpoint}: {exc}") from None
+    if model is not None and (model.task != task or model.input_size != info.state_size):
+        raise LeRobotError(f"checkpoint {checkpoint} is a model of task {model.task!r} (states of {model.input_size}); "
+                           f"the episodes are of {task!r} (states of {info.state_size})")
 
     tmp = temporary_sibling(out)
     try:
@@ -212,6 +248,18 @@ def export_lerobot(bags: list, out: str | Path, checkpoint: str | Path | None = 
     report.seconds = time.perf_counter() - t0
     report.bytes = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     return report
+
+
+def _closing(items, current_video):
+    """`items`, closing the video `current_video()` returns if the loop over them fails (an open
+    PyAV container would otherwise hold its file until garbage collection)."""
+    try:
+        yield from items
+    except BaseException:
+        video = current_video()
+        if video is not None:
+            video.close()
+        raise
 
 
 def _write(root, chosen, lengths, info, task, fps, codec, model, with_actions, action_size, with_frames,
@@ -261,7 +309,7 @@ def _write(root, chosen, lengths, info, task, fps, codec, model, with_actions, a
             data_chunk, data_file = next_file(data_chunk, data_file)
         data_tables, data_bytes = [], 0
 
-    for e, (ep, n) in iterator:
+    for e, (ep, n) in _closing(iterator, lambda: video):
         index_of[(ep.source, ep.episode)] = e
         states = np.stack([ep.states[t][0] for t in range(n)])
         cols = {STATE: states}
@@ -293,7 +341,8 @@ def _write(root, chosen, lengths, info, task, fps, codec, model, with_actions, a
         stats = {name: feature_stats(np.asarray(cols.get(name, defaults.get(name)), np.float64))
                  for name in {**features, **DEFAULT_FEATURES}}
         if with_frames:
-            rgb = np.stack([_decode(ep.frames[t]) for t in range(n)])
+            rgb = np.stack([_decode(ep.frames[t], f"episode {ep.episode} of {ep.source or '/'}, step {t}")
+                            for t in range(n)])
             if frame_shape is None:
                 frame_shape = rgb.shape[1:]
             elif rgb.shape[1:] != frame_shape:
@@ -377,6 +426,8 @@ def _write(root, chosen, lengths, info, task, fps, codec, model, with_actions, a
             report.skipped["comparison_of_unexported_episode"] += 1
         elif (int(m.length_a), int(m.length_b)) != (lengths[a], lengths[b]):
             report.skipped["comparison_length_mismatch"] += 1
+        elif int(m.preference) not in (-1, 0, 1):
+            report.skipped["comparison_unknown_preference"] += 1
         else:
             pair_rows.append({"episode_index_a": a, "episode_index_b": b, "p": (int(m.preference) + 1) / 2,
                               "labeller": m.labeller,

@@ -59,9 +59,15 @@ class VideoWriter:
         h, w = frames.shape[1] // 2 * 2, frames.shape[2] // 2 * 2
         if self.size is None:
             if h < 2 or w < 2:
+                self.close()
                 raise LeRobotError(f"frames of {frames.shape[1]}x{frames.shape[2]} pixels are too small for a video")
             self.size = (h, w)
-            self._open_stream(h, w)
+            try:
+                self._open_stream(h, w)
+            except Exception as exc:  # noqa: BLE001 - e.g. an encoder this PyAV build lacks
+                self._stream = None
+                self.close()
+                raise LeRobotError(f"cannot encode {self.codec} video here: {exc}") from None
         elif self.size != (h, w):
             raise LeRobotError(f"frames of {frames.shape[1]}x{frames.shape[2]} pixels in a video of "
                                f"{self.size[0]}x{self.size[1]}: every frame of a camera must have one size")
@@ -81,11 +87,13 @@ class VideoWriter:
     def close(self) -> None:
         if self._container is None:
             return
-        if self._stream is not None:
-            for packet in self._stream.encode():
-                self._container.mux(packet)
-        self._container.close()
-        self._container = None
+        try:
+            if self._stream is not None:
+                for packet in self._stream.encode():
+                    self._container.mux(packet)
+        finally:
+            self._container.close()
+            self._container = None
 
     def __enter__(self) -> "VideoWriter":
         return self

@@ -239,6 +239,7 @@ class Learner:
         self.source = ""
         self.checkpoint = str(p["checkpoint"])  # the model to relabel with once it is served
         self.relabelled = self.checkpoint        # the model the replay buffer's labels are from
+        self.catch_up_left = 0                   # catch-up gradient steps still to take on it
         node.get_logger().info(f"learning {self.algo} on {self.task} for {self.episodes} episodes, "
                                f"seed {self.seed}, output {self.out}")
 
@@ -325,7 +326,7 @@ class Learner:
 
             self.keeper = make_keeper(self.cfg)
             callback = EpisodeCurveCallback(max_episodes=self.episodes, on_episode=self.on_episode,
-                                            between_steps=self.relabel_if_served, keeper=self.keeper)
+                                            between_steps=self.between_steps, keeper=self.keeper)
             t0 = time.monotonic()
             try:
                 self.model.learn(total_timesteps=self.episodes * self.node.info.episode_length, callback=callback)
@@ -346,10 +347,31 @@ class Learner:
             if self.node.exit_code is None:
                 self.node.exit_code = 0 if not self.outcome.startswith("failed") else 1
 
+    #: catch-up gradient steps taken between two actions: env_sim re-asks for an action after its
+    #: action_timeout (5 s) and gives the episode up after 3 tries, so a catch-up of 10000 steps
+    #: (25-75 s) is spread over the following steps, ~0.3-0.6 s between two actions
+    CATCH_UP_CHUNK = 200
+
+    def between_steps(self) -> None:
+        """Learner thread, between two steps: relabel on a new model, then catch up in chunks."""
+        self.relabel_if_served()
+        if self.catch_up_left > 0 and self.model is not None:
+            from ..rl.replay_relabel import catch_up
+
+            try:
+                done = catch_up(self.model, min(self.catch_up_left, self.CATCH_UP_CHUNK))
+            except Exception as exc:  # noqa: BLE001 - a failed refit must not stop the learner
+                self.node.get_logger().error(f"catch-up on {self.relabelled} stopped: {exc!r}")
+                done = 0
+            self.catch_up_left = self.catch_up_left - done if done else 0
+            if self.catch_up_left == 0:
+                self.node.get_logger().info(f"caught up on {Path(self.relabelled).name}")
+
     def relabel_if_served(self) -> None:
         """Learner thread, between steps: relabel the replay buffer with `checkpoint` once a
-        robot's current episode is served by it (RewardStep.source = its file name), and refit
-        the agent on it (`catch_up_steps` gradient steps; the robots wait for the next action)."""
+        robot's current episode is served by it (RewardStep.source = its file name); the agent
+        then catches up on it (`catch_up_steps` gradient steps, `CATCH_UP_CHUNK` between two
+        actions: `between_steps`)."""
         wanted = self.checkpoint
         if not wanted or wanted == self.relabelled or self.model is None:
             return
@@ -360,7 +382,7 @@ class Learner:
             return  # the reward model serves it from its next episode start
         from ..mil import CheckpointError, OnlineRewardModel
         from ..rl.config import trust_settings
-        from ..rl.replay_relabel import adopt_model
+        from ..rl.replay_relabel import relabel_replay_buffer
 
         self.relabelled = wanted
         log = self.node.get_logger()
@@ -371,14 +393,15 @@ class Learner:
             if self.use_hidden and width != d + stepper.served_size:
                 raise ValueError(f"it serves {stepper.served_size} hidden values, the agent observes {width - d}")
             t0 = time.monotonic()
-            n, steps = adopt_model(self.model, stepper, d, trust_settings(self.cfg)["catch_up_steps"])
+            n = relabel_replay_buffer(self.model.replay_buffer, stepper, d)
+            steps = self.catch_up_left = int(trust_settings(self.cfg)["catch_up_steps"])
         except (CheckpointError, ValueError, OSError) as exc:
             log.error(f"replay buffer not relabelled with {wanted}: {exc}")
             return
         if self.keeper is not None:  # a policy is kept with the model it acted on
             self.keeper.retag(wanted, self.model)
-        log.info(f"replay buffer relabelled with {name}: {n} transitions and {steps} catch-up gradient "
-                 f"steps in {time.monotonic() - t0:.1f} s")
+        log.info(f"replay buffer relabelled with {name}: {n} transitions in {time.monotonic() - t0:.1f} s; "
+                 f"up to {steps} catch-up gradient steps follow, {self.CATCH_UP_CHUNK} between two actions")
 
     def on_episode(self, rec, info: dict) -> None:
         key = (info.get("robot", 0), info.get("episode_id", -1))

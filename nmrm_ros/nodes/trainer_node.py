@@ -51,7 +51,7 @@ PARAMETERS = {
     "labeller": Param(["person/"], "labels used: labeller ids, or prefixes ending in '/' (e.g. "
                                    "[person/alice, person/bob]); '' = any"),
     "retrain_every": Param(10, "retrain after this many new labelled episodes", 1),
-    "architecture": Param("csc_lstm", "csc_lstm | instance_lstm | embedding_lstm | instance_nn"),
+    "architecture": Param("csc_lstm", "csc_lstm | instance_lstm | embedding_lstm | instance_nn | transformer"),
     "members": Param(5, "ensemble members (their disagreement orders the labelling queue)", 1),
     "max_epochs": Param(40, "epochs per retraining (warm-started; early stopping as configured)", 1),
     "seed": Param(0, "seed of the splits and of the members' initialisation"),
