@@ -80,7 +80,7 @@ def test_cli_repair(tmp_path):
 def test_cli_rejects_bad_input(tmp_path):
     r = nmrm("dataset", "generate", "--task", "maze", "--episodes", "5", "--out", tmp_path / "x")
     assert r.returncode != 0 and "unknown task" in r.stderr
-    r = nmrm("train", "--task", "key", "--arch", "transformer")
+    r = nmrm("train", "--task", "key", "--arch", "gru")
     assert r.returncode != 0 and "unknown architecture" in r.stderr
     r = nmrm("evaluate", "--checkpoint", tmp_path / "none")
     assert r.returncode != 0 and "missing" in r.stderr
