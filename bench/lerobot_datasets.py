@@ -60,7 +60,7 @@ def key_bag(episodes: int) -> Path:
 
 def camera_bag(episodes: int) -> Path:
     """Random CartPole episodes with each step's rendered frame, as env_sim records them."""
-    from nmrm_ros.bags.episodes import BASE_TIME_NS, STEP_NS, T_ACT, T_OBS, TOPIC
+    from nmrm_ros.bags.episodes import BASE_TIME_NS, STEP_NS, T_ACT, T_OBS, TOPIC, stamped_header
     from nmrm_ros.bags.writer import BagWriter
     from nmrm_ros.tasks import make_env
     from nmrm_ros.tasks.frames import encode_frame, frame_id
@@ -72,26 +72,23 @@ def camera_bag(episodes: int) -> Path:
     rng = np.random.default_rng(0)
     t = BASE_TIME_NS
 
-    def header(t_ns, frame=""):
-        return {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": frame}
-
     with BagWriter(path) as bag:
         for e in range(episodes):
             obs, _ = env.reset(seed=e)
             step, done, term = 0, False, False
             while True:
                 bag.write_dict("/nmrm/frame", "sensor_msgs/msg/CompressedImage", {
-                    "header": header(t, frame_id(e, step)), "format": "jpeg",
+                    "header": stamped_header(t, frame_id(e, step)), "format": "jpeg",
                     "data": encode_frame(env.render(), width=240)}, t)
                 final = done
-                bag.write_dict(TOPIC[T_OBS], T_OBS, {"header": header(t, CAMERA_TASK), "task": CAMERA_TASK,
+                bag.write_dict(TOPIC[T_OBS], T_OBS, {"header": stamped_header(t, CAMERA_TASK), "task": CAMERA_TASK,
                                                      "episode": e, "step": step,
                                                      "state": [float(x) for x in obs], "terminated": final and term,
                                                      "truncated": final and not term}, t)
                 if final:
                     break
                 action = int(rng.integers(env.action_space.n))
-                bag.write_dict(TOPIC[T_ACT], T_ACT, {"header": header(t), "episode": e, "step": step,
+                bag.write_dict(TOPIC[T_ACT], T_ACT, {"header": stamped_header(t), "episode": e, "step": step,
                                                      "action": [float(action)]}, t + 1)
                 obs, _, term, trunc, _ = env.step(action)
                 done = term or trunc

@@ -47,7 +47,8 @@ BASE_TIME_NS = 1_735_689_600 * 10**9
 STEP_NS = 10_000_000
 
 
-def _header(t_ns: int, frame: str = "") -> dict:
+def stamped_header(t_ns: int, frame: str = "") -> dict:
+    """A std_msgs/Header as a dict: the stamp of `t_ns` nanoseconds and `frame` as frame_id."""
     return {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": frame}
 
 
@@ -90,23 +91,23 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                 final = step == length
                 state = ds.final_states[i] if final else ds.states[i, step]
                 bag.write_dict(TOPIC[T_OBS], T_OBS, {
-                    "header": _header(t, ds.task), "task": ds.task, "episode": e, "step": step,
+                    "header": stamped_header(t, ds.task), "task": ds.task, "episode": e, "step": step,
                     "state": [float(x) for x in state], "terminated": False, "truncated": final}, t)
                 if not final:
                     if ds.actions is not None:
                         a = np.asarray(ds.actions[i, step], dtype=np.float64).reshape(-1)
                         bag.write_dict(TOPIC[T_ACT], T_ACT, {
-                            "header": _header(t), "episode": e, "step": step,
+                            "header": stamped_header(t), "episode": e, "step": step,
                             "action": [float(x) for x in a]}, t + 1)
                     if include_oracle:
                         bag.write_dict(TOPIC[T_ORC], T_ORC, {
-                            "header": _header(t, ds.task), "episode": e, "step": step,
+                            "header": stamped_header(t, ds.task), "episode": e, "step": step,
                             "hidden": [float(x) for x in ds.hidden[i, step]],
                             "reward": float(ds.rewards[i, step])}, t + 2)
                 t += STEP_NS
             if returns:
                 bag.write_dict(TOPIC[T_RET], T_RET, {
-                    "header": _header(t), "task": ds.task, "episode": e, "length": length,
+                    "header": stamped_header(t), "task": ds.task, "episode": e, "length": length,
                     "return_value": float(ds.returns[i]), "labeller": labeller}, t)
             t += STEP_NS
         for a, b, p in ([] if ds.preferences is None else ds.preferences):
@@ -119,7 +120,7 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
 def preference_message(task: str, episode_a: int, length_a: int, episode_b: int, length_b: int,
                        p: float, labeller: str, t_ns: int, source_a: str = "", source_b: str = "") -> dict:
     """A TrajectoryPreference as a dict; p = P(a better): 1 -> A_BETTER, 0 -> B_BETTER, 0.5 -> EQUAL."""
-    return {"header": _header(t_ns), "task": task, "source_a": source_a, "episode_a": int(episode_a),
+    return {"header": stamped_header(t_ns), "task": task, "source_a": source_a, "episode_a": int(episode_a),
             "length_a": int(length_a), "source_b": source_b, "episode_b": int(episode_b),
             "length_b": int(length_b), "preference": int(round(2 * p - 1)), "labeller": labeller}
 

@@ -268,7 +268,8 @@ def _side_tables(root: Path) -> dict:
 def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, frames: dict, side: dict | None,
                wanted: list, label_key: str | None, with_camera: bool) -> ImportReport:
     """The bag of the chosen episodes at `path` (its .mcap file named after `name`)."""
-    from ..bags.episodes import BASE_TIME_NS, STEP_NS, T_ACT, T_OBS, T_PREF, T_RET, TOPIC, preference_message
+    from ..bags.episodes import (BASE_TIME_NS, STEP_NS, T_ACT, T_OBS, T_PREF, T_RET, TOPIC, preference_message,
+                                 stamped_header)
     from ..bags.writer import BagWriter
     from ..tasks.frames import frame_id
 
@@ -276,9 +277,6 @@ def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, 
     ours = {r["episode_index"]: r for r in side["episodes"]} if side else {}
     ids = {}  # LeRobot episode index -> (source, episode id in the bag, length L)
     t = BASE_TIME_NS
-
-    def header(t_ns, frame=""):
-        return {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": frame}
 
     def topic(source, type_name):
         return f"{source}{TOPIC[type_name]}"
@@ -313,16 +311,16 @@ def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, 
                 last = step == length
                 state = final if last else s[step]
                 bag.write_dict(topic(source, T_OBS), T_OBS, {
-                    "header": header(t, task), "task": task, "episode": episode, "step": step,
+                    "header": stamped_header(t, task), "task": task, "episode": episode, "step": step,
                     "state": [float(x) for x in state], "terminated": last and terminated,
                     "truncated": last and not terminated}, t)
                 if step in images:
                     bag.write_dict(f"{source}/nmrm/frame", "sensor_msgs/msg/CompressedImage", {
-                        "header": header(t, frame_id(episode, step)), "format": "jpeg", "data": images[step]}, t)
+                        "header": stamped_header(t, frame_id(episode, step)), "format": "jpeg", "data": images[step]}, t)
                     report.frames += 1
                 if not last and a is not None:
                     bag.write_dict(topic(source, T_ACT), T_ACT, {
-                        "header": header(t), "episode": episode, "step": step,
+                        "header": stamped_header(t), "episode": episode, "step": step,
                         "action": [float(x) for x in a[step]]}, t + 1)
                 t += STEP_NS
             report.steps += length
@@ -331,7 +329,7 @@ def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, 
                 report.unlabelled += 1  # a missing or NaN reward: no return label
             elif g is not None:
                 bag.write_dict(topic(source, T_RET), T_RET, {
-                    "header": header(t), "task": task, "episode": episode, "length": length,
+                    "header": stamped_header(t), "task": task, "episode": episode, "length": length,
                     "return_value": float(g.sum()), "labeller": f"lerobot/{label_key}"}, t)
                 report.labels += 1
             t += STEP_NS
@@ -340,7 +338,7 @@ def _write_bag(path: Path, name: str, task: str, rows: list, per_episode: dict, 
                 source, episode, length = ids[label["episode_index"]]
                 stamp = int(label["stamp_ns"])
                 bag.write_dict(topic(source, T_RET), T_RET, {
-                    "header": header(stamp), "task": task, "episode": episode, "length": length,
+                    "header": stamped_header(stamp), "task": task, "episode": episode, "length": length,
                     "return_value": float(label["return"]), "labeller": label["labeller"]}, t)
                 report.labels += 1
                 t += 1
