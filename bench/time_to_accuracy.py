@@ -17,7 +17,8 @@ never used to choose a default. Nothing else should run meanwhile (the wall time
 
 Tasks: key, timer, charger, moving (the paper's navigation tasks); cartpole (examples/
 cartpole_crossings.py), mountaincar (examples/mountaincar_swing.py), delivery (the fake robot's
-task), each a task spec that takes config/mil_training.yaml's `your_own_task` entry.
+task), each a task spec that takes config/mil_training.yaml's `your_own_task` entry; and, only
+when named, key_pixels ... moving_pixels (the same datasets rendered to 32 x 32 images, issue 53).
 
 Resumes: each run is bench/results/time_to_accuracy/<tag>/<task>_s<s>.json and is skipped when
 present (delete it to redo it). The report prints, per task and tag, the worst wall time and the
@@ -53,7 +54,9 @@ OWN = {
     "delivery": ("nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1", "nmrm_ros.robots.delivery:oracle",
                  2000, 1000),
 }
-TASKS = NAV + tuple(OWN)
+#: the navigation tasks seen through a rendered top-down image (issue 53; not in the default run)
+PIXELS = tuple(f"{t}_pixels" for t in NAV)
+TASKS = NAV + tuple(OWN) + PIXELS
 NMRM = Path(sys.executable).parent / "nmrm"
 
 
@@ -65,6 +68,13 @@ def dataset_file(task: str, seed: int, held_out: bool = False) -> Path:
         n = 2000 if held_out else 5000
         cached_dataset(task, n, seed, root=ROOT / "runs" / "data")
         return ROOT / "runs" / "data" / f"{task}_n{n}_s{seed}.npz"
+    if task in PIXELS:  # the state task's dataset, rendered (written once: `nmrm train --data` reads a file)
+        n = 2000 if held_out else 5000
+        path = RUNS / "data" / f"{task}_n{n}_s{seed}.npz"
+        if not path.is_file():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            cached_dataset(task, n, seed, root=ROOT / "runs" / "data").save(path)
+        return path
     spec, oracle, n_train, n_held = OWN[task]
     n = n_held if held_out else n_train
     path = RUNS / "data" / f"{task}_n{n}_s{seed}.npz"
@@ -147,7 +157,8 @@ def report(tags: list) -> str:
             w = [r["wall_seconds"] for r in rs]
             ret = [r["held_return_mse"] for r in rs]
             rew = [r["held_reward_mse"] for r in rs]
-            bars = f"{_bar(PAPER_RETURN, task):.3g} / {_bar(PAPER_REWARD, task):.3g}" if task in NAV else "-"
+            base = task.removesuffix("_pixels")
+            bars = f"{_bar(PAPER_RETURN, base):.3g} / {_bar(PAPER_REWARD, base):.3g}" if base in NAV else "-"
             still = [r["data_seed"] for r in rs if r.get("still_improving") and any(r["still_improving"])]
             epochs = max((r.get("epochs") or 0) for r in rs)
             lines.append(f"{task:12s} {tag:10s} {str([r['data_seed'] for r in rs]):12s} "
@@ -158,7 +169,7 @@ def report(tags: list) -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    p.add_argument("--tasks", nargs="+", default=list(NAV + tuple(OWN)), choices=TASKS)
     p.add_argument("--seeds", nargs="+", type=int, default=[20, 21, 22])
     p.add_argument("--tag", default="head", help="results directory name (bench/results/time_to_accuracy/TAG)")
     p.add_argument("--config-at", default=None, help="train with config/mil_training.yaml as at this commit")

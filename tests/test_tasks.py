@@ -96,7 +96,8 @@ def test_lunar_lander_rest_does_not_end_episode_but_leaving_screen_does():
 
 
 def test_registry():
-    assert set(TASKS) == {"timer", "moving", "key", "charger", "lunar_lander"}
+    assert set(TASKS) == {"timer", "moving", "key", "charger", "lunar_lander", "timer_pixels", "moving_pixels",
+                          "key_pixels", "charger_pixels"}
     assert task_info("lunar_lander").state_size == 8
     assert task_info("key").action_size == 5
     with pytest.raises(ValueError, match="unknown task"):

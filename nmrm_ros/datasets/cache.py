@@ -16,7 +16,15 @@ from .trajectories import TrajectoryDataset
 def cached_dataset(task: str, n: int, seed: int, root: str | Path = "runs/data") -> TrajectoryDataset:
     """`n` episodes of `task` with data seed `seed` (screened; a toy dataset's own generator),
     from `root`/<task>_n<n>_s<seed>.npz if it is there and today's generator made it, else made
-    (and saved there)."""
+    (and saved there); a pixel task's: its state task's, rendered."""
+    if task not in TOY_DATASETS:
+        from ..tasks import task_info
+
+        info = task_info(task)
+        if info.pixels_of:  # rendered from the state task's (not kept: rendering takes seconds)
+            from ..tasks.pixel_navigation import pixel_dataset
+
+            return pixel_dataset(cached_dataset(info.pixels_of, n, seed, root), task)
     path = Path(root) / f"{task}_n{n}_s{seed}.npz"
     if path.is_file():
         cached = TrajectoryDataset.load(path)

@@ -212,8 +212,13 @@ def generate_screened(task: str, n_target: int = 5000, seed: int = 0, oracle: st
     them its episodes); a task of the user's (a task spec) or any task with a user's `oracle`
     ("<module>:<function>"), return bins over a pool of a random policy or of kwargs policy
     (`policy(state) -> action`, e.g. `rl.agent_episodes.load_screening_policy(policy.zip, ...)`;
-    `return_screening`; kwargs pool_size, bins, policy)."""
+    `return_screening`; kwargs pool_size, bins, policy); a pixel task, its state task's dataset
+    rendered (`tasks.pixel_navigation.pixel_dataset`)."""
     info = task_info(task)
+    if info.pixels_of:  # the state task's dataset, rendered
+        from ..tasks.pixel_navigation import pixel_dataset
+
+        return pixel_dataset(generate_screened(info.pixels_of, n_target, seed, oracle, **kwargs), task)
     if oracle or info.screening == "return_bins":
         from .return_screening import screen_by_return
 

@@ -19,7 +19,8 @@ PER_TRAJECTORY_META = ("episodes", "sources", "labels")
 class TrajectoryDataset:
     """n trajectories padded to length L (padding is zero; `lengths` says what is real).
 
-    states (n, L, d) float32: the instances s_0..s_{len-1}; final_states (n, d) float32: the
+    states (n, L, d) float32: the instances s_0..s_{len-1} (uint8 where the task's state is an
+    image's pixels, `TaskInfo.image_shape`: 4x smaller); final_states (n, d), same dtype: the
     observation s_len after the last action (None for toy bags); actions (n, L) int64 or
     (n, L, m) float32, or None; returns (n,) float64 (the labels); rewards (n, L) float64 and
     hidden (n, L, k) float64: the oracle's r_t and h_{t+1} (evaluation only); classes (n,) int64
@@ -27,7 +28,8 @@ class TrajectoryDataset:
     preferences (m, 3) float64 or None: pairwise comparisons of trajectories, one row
     (a, b, p) per comparison: indices a and b into this dataset and p = P(a better than b) as
     labelled (1: a better, 0: b better, 0.5: equal). A trajectory without a return label (only
-    compared) has return NaN.
+    compared) has return NaN. privileged (n, L, p) float32 or None: the privileged state at each
+    step (what the oracle saw and a model never sees, `TaskInfo.privileged_size`).
     """
 
     task: str
@@ -41,6 +43,7 @@ class TrajectoryDataset:
     classes: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     preferences: np.ndarray | None = None
+    privileged: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.states.shape[0])
@@ -61,7 +64,7 @@ class TrajectoryDataset:
         return TrajectoryDataset(self.task, self.states[index], self.lengths[index],
                                  self.returns[index], self.rewards[index], self.hidden[index],
                                  pick(self.actions), pick(self.final_states), pick(self.classes), meta,
-                                 self._preferences_of(rows))
+                                 self._preferences_of(rows), pick(self.privileged))
 
     def _preferences_of(self, rows: np.ndarray) -> np.ndarray | None:
         """The comparisons between trajectories of `rows` (both ends picked), re-indexed into the
@@ -107,7 +110,8 @@ class TrajectoryDataset:
         if not path.name.endswith(".npz"):
             path = path.with_name(path.name + ".npz")
         arrays = {k: getattr(self, k) for k in ("states", "lengths", "returns", "rewards", "hidden",
-                                                "actions", "final_states", "classes", "preferences")
+                                                "actions", "final_states", "classes", "preferences",
+                                                "privileged")
                   if getattr(self, k) is not None}
         header = json.dumps({"task": self.task, "meta": self.meta})
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
@@ -125,7 +129,7 @@ class TrajectoryDataset:
             get = lambda k: z[k] if k in z.files else None  # noqa: E731
             return cls(header["task"], z["states"], z["lengths"], z["returns"], z["rewards"],
                        z["hidden"], get("actions"), get("final_states"), get("classes"),
-                       header["meta"], get("preferences"))
+                       header["meta"], get("preferences"), get("privileged"))
 
 
 def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
@@ -140,7 +144,7 @@ def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
         arrays = [getattr(p, name) for p in parts]
         if any(a is None for a in arrays):
             return None
-        if name in ("states", "rewards", "hidden", "actions"):
+        if name in ("states", "rewards", "hidden", "actions", "privileged"):
             arrays = [np.pad(a, [(0, 0), (0, width - a.shape[1])] + [(0, 0)] * (a.ndim - 2))
                       for a in arrays]
         return np.concatenate(arrays)
@@ -157,4 +161,4 @@ def concatenate(parts: list, meta: dict | None = None) -> TrajectoryDataset:
     prefs = [p.preferences + np.array([o, o, 0.0]) for p, o in zip(parts, offsets) if p.preferences is not None]
     return TrajectoryDataset(parts[0].task, cat("states"), cat("lengths"), cat("returns"),
                              cat("rewards"), cat("hidden"), cat("actions"), cat("final_states"),
-                             cat("classes"), meta, np.concatenate(prefs) if prefs else None)
+                             cat("classes"), meta, np.concatenate(prefs) if prefs else None, cat("privileged"))

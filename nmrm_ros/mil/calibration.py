@@ -78,6 +78,7 @@ def fit_calibration(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
     model.eval()
     predicted = []
     with torch.no_grad():
+        batch_size = bags.eval_rows(batch_size, model.members)
         for start in range(0, len(bags), batch_size):
             x, lengths, _ = bags.batch(torch.arange(start, min(start + batch_size, len(bags))))
             predicted.append(model(x, lengths).returns.double().numpy())

@@ -1,7 +1,8 @@
 """K reward models of one architecture computed as one batched model (an ensemble).
 
     ens = MILEnsemble.from_members([build_model(cfg) for _ in range(K)])
-    out = ens(x, lengths)     x: (B, T, d) shared by all members, or (K, B, T, d) a batch each;
+    out = ens(x, lengths)     x: (B, T, d) shared by all members, or (K, B, T, d) a batch each
+                              (float32, or uint8 where every input is a pixel);
                               lengths: (B,) or (K, B)
     out.returns (K, B)  out.rewards (K, B, T)  out.hidden (K, B, T, k)
     ens(x, lengths, members=idx)   only members idx (K',): x (K', B, T, d) or (B, T, d), outputs (K', ...)
@@ -31,6 +32,7 @@ import torch
 from torch import nn
 
 from .dropout import MemberDropout, dropout_mask, relu_dropout
+from .image_encoder import PatchLayer, pixel_weights
 from .models import MILOutput, MILRewardModel, ModelConfig, build_model, output_activation
 
 
@@ -67,6 +69,7 @@ class MILEnsemble(nn.Module):
         self.dropout_masks: MemberDropout | None = None
         self._step_masks = None  # this forward's masks, one per activation in order
         self._computed = None  # this forward's members (None: all)
+        self._pixels = torch.empty(0)  # the image encoder's patch buffer (`_encode`)
 
     # ----------------------------------------------------------------- members in and out
     @classmethod
@@ -145,13 +148,35 @@ class MILEnsemble(nn.Module):
         return relu_dropout(z, mask, 1.0 / (1.0 - self.dropout))
 
     def _features(self, x: torch.Tensor) -> torch.Tensor:
-        """(K, N, d) raw instances -> (K, N, F) features."""
+        """(K, N, d) raw instances -> (K, N, F) features (through the image encoder first where
+        the states hold an image)."""
         shift, scale = ((self.input_shift, self.input_scale) if self._computed is None
                         else (self.input_shift[self._computed], self.input_scale[self._computed]))
-        z = (x - shift[:, None, :]) / scale[:, None, :]
+        values = self.config.image_values
+        z = (x[..., values:].float() - shift[:, None, values:]) / scale[:, None, values:]
+        if values:
+            e = self._encode(x)
+            z = torch.cat([e, z], dim=-1) if z.shape[-1] else e  # (K, N, P*c + v)
         for name in self._fe:
             z = self._activation(self._linear(z, "feature_extractor", name))
         return z
+
+    def _encode(self, x: torch.Tensor) -> torch.Tensor:
+        """The image encoder (`image_encoder`) of (K, N, d) raw instances -> (K, N, P*c). The
+        patches are copied once, as float32, into a buffer kept between forwards (a fresh 100 MB
+        tensor a step costs more in page faults than the copy), then `image_encoder.PatchLayer`."""
+        cfg = self.config
+        (h, w, c), p = cfg.image_shape, cfg.patch
+        K, N = x.shape[:2]
+        size = K * N * h * w * c
+        if self._pixels.numel() < size:
+            self._pixels = torch.empty(size)
+        buf = self._pixels[:size]
+        buf.view(K, N, h // p, w // p, p, p, c).copy_(
+            x[..., :cfg.image_values].reshape(K, N, h // p, p, w // p, p, c).permute(0, 1, 2, 4, 3, 5, 6))
+        flat = buf.view(K, N * (h // p) * (w // p), p * p * c)
+        weight, bias = pixel_weights(self._p("encoder__weight"), self._p("encoder__bias"))
+        return PatchLayer.apply(flat, weight, bias).view(K, N, -1)
 
     def _head_out(self, z: torch.Tensor) -> torch.Tensor:
         """(K, N, in) -> (K, N) in label units."""
@@ -231,7 +256,7 @@ class MILEnsemble(nn.Module):
         """forward() of (K, B, T, d) instances and (K, B) lengths: features, [LSTM,] head, then
         the architecture's rule (`architectures.REGISTRY`)."""
         K, B, T, d = x.shape
-        mask = (torch.arange(T)[None, None, :] < lengths[..., None]).to(x.dtype)  # (K, B, T)
+        mask = (torch.arange(T)[None, None, :] < lengths[..., None]).float()  # (K, B, T)
         f = self._features(x.reshape(K, B * T, d))
         hidden = (self._lstm(f.view(K, B, T, -1)) if self.uses_lstm
                   else self._attention(f.view(K, B, T, -1)) if self.uses_attention else None)  # (K, B, T, k)
@@ -239,7 +264,7 @@ class MILEnsemble(nn.Module):
         y = self._head_out(self.rule.head_input(f, flat_hidden)).view(K, B, T)
         returns, rewards = self.rule.outputs(y, mask, lengths)
         if hidden is None:
-            return MILOutput(returns, rewards, x.new_zeros(K, B, T, 0))
+            return MILOutput(returns, rewards, mask.new_zeros(K, B, T, 0))
         return MILOutput(returns, rewards, hidden * mask[..., None])
 
     def layers(self, member: int | None = None) -> dict:
@@ -247,13 +272,15 @@ class MILEnsemble(nn.Module):
         "head": [...], and with an LSTM "lstm": {"weight_ih" (K, 4k, F), "weight_hh" (K, 4k, k),
         "bias_ih", "bias_hh" (K, 4k), "h0", "c0" (K, k)}} (torch's gate order [i | f | g | o]);
         with attention "attention": {"inp" (K, k, F), "query", "key", "value", "out" (K, k, k),
-        "inp_bias", "out_bias" (K, k)};
+        "inp_bias", "out_bias" (K, k)}; with an image encoder "encoder": (W (K, c, ppC), b (K, c));
         `member`: that member's only, without the member axis."""
         pick = (lambda t: t.detach()) if member is None else (lambda t: t.detach()[member])
         p = self.params
         out = {part: [(pick(p[_key(f"{part}.{n}.weight")]), pick(p[_key(f"{part}.{n}.bias")]))
                       for n in names]
                for part, names in (("feature_extractor", self._fe), ("head", self._head))}
+        if self.config.image_shape:
+            out["encoder"] = (pick(p["encoder__weight"]), pick(p["encoder__bias"]))
         if self.uses_attention:
             out["attention"] = {name: pick(p[f"attention__{name}__weight"]) for name in ("inp", "query", "key", "value", "out")}
             out["attention"].update({f"{name}_bias": pick(p[f"attention__{name}__bias"]) for name in ("inp", "out")})

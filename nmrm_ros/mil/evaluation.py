@@ -38,6 +38,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
     adds the mean over bags of the members' return std."""
     model = as_ensemble(model).eval()
     bags = BagTensors(ds)
+    batch_size = bags.eval_rows(batch_size, model.members)
     ret_se, rew_se, steps, spread = 0.0, 0.0, 0, 0.0
     predicted, step_pred, step_true, step_index = [], [], [], []
     err_by_t = torch.zeros(bags.x.shape[1], dtype=torch.float64)  # summed errors per step index

@@ -18,6 +18,7 @@ The LSTM has a learnable initial state (h'_0, c'_0).
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
@@ -26,6 +27,7 @@ from torch import nn
 
 from .architectures import REGISTRY, architecture
 from .dropout import dropout_mask
+from .image_encoder import check_image_config, encoded_size, patches, pixel_weights
 
 ARCHITECTURES = tuple(REGISTRY)
 ARCHITECTURE_NAMES = {name: arch.title for name, arch in REGISTRY.items()}
@@ -38,7 +40,10 @@ class ModelConfig:
     fe_sizes: feature extractor layer widths (FC + ReLU + dropout each); head_sizes: head hidden
     widths (FC + ReLU + dropout each) before the final FC to 1; output_activation: one of
     OUTPUT_ACTIVATIONS ("leaky_relu": slope 1e-6, the paper's for Lunar Lander); hidden_size: LSTM
-    state size (paper: 2), or the attention width of the transformer.
+    state size (paper: 2), or the attention width of the transformer. image_shape: (H, W, C) of
+    the image whose pixels are the first H*W*C input values (() for a vector state), read by the
+    image encoder (`image_encoder`: `patch`-pixel patches, `patch_channels` each) in front of the
+    feature extractor.
     """
 
     architecture: str
@@ -48,16 +53,33 @@ class ModelConfig:
     hidden_size: int = 2
     dropout: float = 0.0
     output_activation: str = "none"
+    image_shape: tuple = ()
+    patch: int = 4
+    patch_channels: int = 8
+
+    @property
+    def image_values(self) -> int:
+        """How many leading inputs are pixels (0: no image)."""
+        return int(math.prod(self.image_shape)) if self.image_shape else 0
+
+    @property
+    def encoded_size(self) -> int:
+        """The feature extractor's input size (the image encoder's output and the vector part)."""
+        if not self.image_shape:
+            return self.input_size
+        return encoded_size(self.image_shape, self.patch, self.patch_channels, self.input_size)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["fe_sizes"], d["head_sizes"] = list(self.fe_sizes), list(self.head_sizes)
+        d["image_shape"] = list(self.image_shape)
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "ModelConfig":
         d = dict(d)
         d["fe_sizes"], d["head_sizes"] = tuple(d["fe_sizes"]), tuple(d["head_sizes"])
+        d["image_shape"] = tuple(d.get("image_shape", ()))
         return cls(**d)
 
 
@@ -156,7 +178,11 @@ class MILRewardModel(nn.Module):
         self.register_buffer("input_shift", torch.zeros(config.input_size))
         self.register_buffer("input_scale", torch.ones(config.input_size))
         self.register_buffer("return_scale", torch.ones(()))
-        self.feature_extractor = _mlp([config.input_size, *config.fe_sizes], config.dropout, False)
+        if config.image_shape:
+            check_image_config(config.image_shape, config.patch, config.patch_channels, config.input_size)
+            h, w, c = config.image_shape
+            self.encoder = nn.Linear(config.patch * config.patch * c, config.patch_channels)
+        self.feature_extractor = _mlp([config.encoded_size, *config.fe_sizes], config.dropout, False)
         self.feature_size = config.fe_sizes[-1]
         if self.uses_lstm:
             self.lstm = nn.LSTM(self.feature_size, config.hidden_size, batch_first=True)
@@ -176,13 +202,20 @@ class MILRewardModel(nn.Module):
 
     def set_normalisation(self, shift: torch.Tensor, scale: torch.Tensor,
                           return_scale: float = 1.0) -> None:
-        """Set the input normalisation (computed on the training split) and the label scale."""
+        """Set the input normalisation (computed on the training split; an image's pixels:
+        `image_encoder.IMAGE_SHIFT`) and the label scale."""
         self.input_shift.copy_(torch.as_tensor(shift, dtype=torch.float32))
         self.input_scale.copy_(torch.as_tensor(scale, dtype=torch.float32))
         self.return_scale.fill_(float(return_scale))
 
     def _features(self, x: torch.Tensor) -> torch.Tensor:
-        return self.feature_extractor((x - self.input_shift) / self.input_scale)
+        values = self.config.image_values
+        z = (x[..., values:].float() - self.input_shift[values:]) / self.input_scale[values:]
+        if values:
+            p = patches(x[..., :values], self.config.image_shape, self.config.patch).float()
+            e = torch.relu(torch.nn.functional.linear(p, *pixel_weights(self.encoder.weight, self.encoder.bias)))
+            z = torch.cat([e.flatten(-2), z], dim=-1)
+        return self.feature_extractor(z)
 
     def _head(self, z: torch.Tensor) -> torch.Tensor:
         return output_activation(self.config.output_activation, self.head(z)).squeeze(-1) * self.return_scale
@@ -195,14 +228,14 @@ class MILRewardModel(nn.Module):
         return out
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
-        mask = (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).to(x.dtype)
+        mask = (torch.arange(x.shape[1], device=x.device)[None, :] < lengths[:, None]).float()
         features = self._features(x)
         hidden = (self._lstm(features) if self.uses_lstm
                   else self.attention(features) if self.uses_attention else None)
         y = self._head(self.rule.head_input(features, hidden))
         returns, rewards = self.rule.outputs(y, mask, lengths)
         if hidden is None:
-            return MILOutput(returns, rewards, x.new_zeros(x.shape[0], x.shape[1], 0))
+            return MILOutput(returns, rewards, mask.new_zeros(x.shape[0], x.shape[1], 0))
         return MILOutput(returns, rewards, hidden * mask[..., None])
 
 
@@ -217,7 +250,8 @@ def model_config(architecture: str, task: str, input_size: int, dropout: float =
                  hidden_size: int = 2, output_activation: str | None = None,
                  fe_sizes=None, head_sizes=None) -> ModelConfig:
     """The paper's configuration of `architecture` for `task`'s family (output_activation: None or
-    "" for the family's; fe_sizes / head_sizes: layer widths, None for the family's)."""
+    "" for the family's; fe_sizes / head_sizes: layer widths, None for the family's); an image
+    task's states get the image encoder (`image_encoder`)."""
     if architecture not in REGISTRY:
         raise ValueError(f"unknown architecture {architecture!r}; known: {', '.join(REGISTRY)}")
     sizes = dict(FAMILY_SIZES[family_of(task)])
@@ -231,8 +265,20 @@ def model_config(architecture: str, task: str, input_size: int, dropout: float =
                              f"{', '.join(OUTPUT_ACTIVATIONS)}")
         sizes["output_activation"] = output_activation
     hidden_size = max(int(hidden_size), REGISTRY[architecture].min_hidden_size)
+    image_shape = image_shape_of(task)
+    if image_shape:
+        check_image_config(image_shape, 4, 8, int(input_size))
     return ModelConfig(architecture=architecture, input_size=input_size, hidden_size=hidden_size,
-                       dropout=dropout, **sizes)
+                       dropout=dropout, image_shape=image_shape, **sizes)
+
+
+def image_shape_of(task: str) -> tuple:
+    """(H, W, C) of the image in `task`'s states (its TaskInfo's), () for a vector state or a toy
+    dataset."""
+    from ..tasks import TASKS, task_info
+    from ..tasks.gym_task import is_task_spec
+
+    return tuple(task_info(task).image_shape) if task in TASKS or is_task_spec(task) else ()
 
 
 def build_model(config: ModelConfig) -> MILRewardModel:

@@ -19,6 +19,7 @@ import torch
 
 from .architectures import lstm_cell
 from .ensemble import MILEnsemble, as_ensemble
+from .image_encoder import encode_numpy, pixel_weights
 from .models import MILRewardModel
 from .served_state import DEFAULT_SERVED_STATE, check_served_state, served_size, served_states
 
@@ -59,6 +60,10 @@ class OnlineRewardModel:
         self.return_scale = float(ens.return_scale)
         self.activation = cfg.output_activation
         self.fe = [(_arrays(w), _arrays(b)) for w, b in layers["feature_extractor"]]
+        self.image = (cfg.image_shape, cfg.patch) if cfg.image_shape else None
+        if self.image:
+            self.image_values = cfg.image_values
+            self.encoder = pixel_weights(*(_arrays(t) for t in layers["encoder"]))  # W (K, c, ppC) or (c, ppC), b
         self.head = [(_arrays(w), _arrays(b)) for w, b in layers["head"]]
         self.uses_lstm = ens.uses_lstm
         self.uses_attention = ens.uses_attention
@@ -141,7 +146,11 @@ class OnlineRewardModel:
         return y if b is None else y + b
 
     def _fe(self, x: np.ndarray) -> np.ndarray:
-        z = (x - self.shift) / self.scale
+        if self.image:
+            v = self.image_values
+            z = encode_numpy(x, *self.encoder, (x[v:] - self.shift[..., v:]) / self.scale[..., v:], *self.image)
+        else:
+            z = (x - self.shift) / self.scale
         for w, b in self.fe:
             z = np.maximum(self._apply(w, b, z), 0.0)
         return z

@@ -217,13 +217,18 @@ OWN_TASK = "your_own_task"  # the config entry of a task spec (gym:<id>, module:
 
 def load_train_config(task: str, path: str | Path | None = None, **overrides) -> TrainConfig:
     """The task's hyperparameters from the YAML config (its `defaults` merged with the task's
-    entry; a task spec without an entry of its own takes `your_own_task`), then `overrides`
+    entry; a task spec without an entry of its own takes `your_own_task`, a pixel task its state
+    task's), then `overrides`
     (None values ignored). Feedback other than returns drops the task's prefix labels (prefix_fraction
     0) unless `overrides` set them."""
     with open(path or _config_path()) as f:
         table = yaml.safe_load(f)
     if ":" in task and task not in table and OWN_TASK in table:  # a task spec without an entry of its own
         task = OWN_TASK
+    elif task not in table:  # a pixel task without an entry of its own: its state task's settings
+        from ..tasks import TASKS, task_info
+
+        task = task_info(task).pixels_of or task if task in TASKS else task
     if task not in table or task.startswith("_"):
         known = ", ".join(k for k in table if k != "defaults" and not k.startswith("_"))
         raise ValueError(f"no training config for {task!r} in {path or _config_path()}; known: {known}")
@@ -291,6 +296,7 @@ def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size
         index = index.unsqueeze(0).expand(model.members, -1)
     n = index.shape[-1]
     total = torch.zeros(model.members)
+    batch_size = bags.eval_rows(batch_size, model.members)
     for start in range(0, n, batch_size):
         part = slice(start, start + batch_size)
         x, lengths, returns = bags.batch(index[..., part],
@@ -429,11 +435,12 @@ def _val_preference_loss(ens: MILEnsemble, bags: BagTensors, prefs: torch.Tensor
     """Each member's mean Bradley–Terry cross-entropy on its validation comparisons (K,)."""
     ens.eval()
     out = np.zeros(len(rows))
+    pairs = max(1, bags.eval_rows(512, ens.members) // 2)
     for m, r in enumerate(rows):
         r = torch.as_tensor(np.asarray(r), dtype=torch.int64)
         total = 0.0
-        for start in range(0, len(r), 256):
-            pick = prefs[r[start:start + 256]]
+        for start in range(0, len(r), pairs):
+            pick = prefs[r[start:start + pairs]]
             ab = torch.cat([pick[:, 0], pick[:, 1]]).long()
             x, lengths, _ = bags.batch(ab)
             returns = ens(x, lengths).returns[m]
@@ -495,7 +502,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     torch.manual_seed(seeds[0])
     ens.seed_dropout(seeds)  # each member's masks from its own seed: a member is its own run
     for m, (tr, _) in enumerate(splits):
-        shift, scale = normalisation(ds.subset(np.asarray(tr)), cfg.normalisation)
+        shift, scale = normalisation(ds.subset(np.asarray(tr)), cfg.normalisation, ens.config.image_values)
         with torch.no_grad():
             ens.input_shift[m] = torch.as_tensor(shift, dtype=torch.float32)
             ens.input_scale[m] = torch.as_tensor(scale, dtype=torch.float32)

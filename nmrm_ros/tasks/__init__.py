@@ -1,7 +1,8 @@
 """Task environments (gymnasium, rewardless) and the task registry.
 
 Tasks: the 2D navigation tasks `timer`, `moving`, `key`, `charger` (one simulator, see
-`navigation`) and `lunar_lander`; and any Gymnasium environment named by a task spec,
+`navigation`), their pixel versions `<task>_pixels` (the state is a rendered top-down image, the
+position privileged: `pixel_navigation`) and `lunar_lander`; and any Gymnasium environment named by a task spec,
 `gym:<id>[,k=v...]` or `<module>:<attribute>[,k=v...]` (`gym_task`). Rewards come from
 `nmrm_ros.oracles` or a learnt model.
 """
@@ -16,7 +17,8 @@ from .gym_task import TaskSpecError, is_task_spec, make_gym_task_env
 from .info import TaskInfo
 
 NAVIGATION_TASKS = ("timer", "moving", "key", "charger")
-TASKS = NAVIGATION_TASKS + ("lunar_lander",)
+PIXEL_TASKS = tuple(f"{t}_pixels" for t in NAVIGATION_TASKS)
+TASKS = NAVIGATION_TASKS + ("lunar_lander",) + PIXEL_TASKS
 
 
 def check_task(task: str) -> str:
@@ -74,6 +76,10 @@ def task_info(task: str) -> TaskInfo:
         from .navigation import navigation_task_info
 
         return navigation_task_info(task)
+    if task in PIXEL_TASKS:
+        from .pixel_navigation import pixel_task_info
+
+        return pixel_task_info(task)
     from .lunar_lander import TASK_INFO
 
     return TASK_INFO
@@ -96,6 +102,12 @@ def make_env(task: str, continuous: bool = False, render: bool = False, **kwargs
         from .navigation import NavigationEnv
 
         return NavigationEnv(task=task, continuous=continuous, **kwargs)
+    if info.pixels_of:
+        if continuous:
+            raise TaskSpecError(f"task {task!r}: the pixel tasks have discrete actions only")
+        from .pixel_navigation import PixelNavigationEnv
+
+        return PixelNavigationEnv(task=task, **kwargs)
     from .lunar_lander import RewardlessLunarLander
 
     return RewardlessLunarLander(**kwargs)

@@ -70,7 +70,13 @@ class TaskInfo:
     each map point (N, 2) -> (N, d) when d > 2 (`states_at`), and what the views say of it (map_note);
     map_name: what the map is called in a figure's title; zones: the `MapZone`s drawn on it;
     instruction: what a person judges, in words (the labelling page shows it; "" = none written);
-    legend: (zone kind, what it means) pairs for the zones the page draws (`arena.arena`)."""
+    legend: (zone kind, what it means) pairs for the zones the page draws (`arena.arena`);
+    image_shape: (H, W, C) when the state's first H*W*C values are an image's pixels (0..255,
+    row-major H, W, C; a reward model puts an image encoder in front of them), () for a vector
+    state; privileged_size: the size of the privileged state (what the oracle and the plots see,
+    a model or an agent never: e.g. the true position behind a camera image), 0 for none;
+    pixels_of: the vector-state task whose pixel version this is (its datasets rendered, its
+    oracle on the privileged state), "" otherwise."""
 
     name: str
     state_size: int
@@ -91,6 +97,14 @@ class TaskInfo:
     zones: tuple = ()
     instruction: str = ""
     legend: tuple = ()
+    image_shape: tuple = ()
+    privileged_size: int = 0
+    pixels_of: str = ""
+
+    @property
+    def image_values(self) -> int:
+        """How many leading state values are pixels (H*W*C; 0 for a vector state)."""
+        return int(math.prod(self.image_shape)) if self.image_shape else 0
 
     def states_at(self, points):
         """The states the views draw at 2D map points (N, 2) -> (N, state_size) (`map_states`;

@@ -1,0 +1,104 @@
+"""The image encoder every architecture puts in front of its feature extractor when a task's
+state is an image (`TaskInfo.image_shape`).
+
+A state is [image pixels (H*W*C, row-major H, W, C, values 0..255), vector (v)]. The encoder is
+one convolution whose kernel is its stride (a "patch" layer, as a vision transformer's patch
+embedding): the image is cut into (H/p) x (W/p) patches of p x p x C pixels, each mapped by the
+same FC layer to `patch_channels` values and a ReLU; the patches' outputs, flattened, and the
+vector form the feature extractor's input:
+
+    e = ReLU(patches(x_img) W_e^T + b_e)      (P, c), P = (H/p)(W/p)
+    FE input = [flatten(e), x_vec]            (P c + v)
+
+so the feature extractor's first FC layer reads every patch's channels at its place (what a
+convolutional encoder's final flatten + FC does). Written as a reshape and a matrix product, the
+K members of an ensemble run it as one batched product (`MILEnsemble`), and the online stepper
+as a NumPy one; it is trained end to end with the rest of the model. Pixels are normalised as
+(x - 127.5) / 127.5 (a fixed shift and scale, `IMAGE_SHIFT`, not the training split's), folded
+into the layer's weights (`pixel_weights`); the input normalisation buffers apply to the vector.
+Cost per frame and member: P * p*p*C * c multiply-adds (32 x 32 x 3, p 4, c 8: 24,576).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+#: what a pixel value is shifted and divided by (0..255 -> -1..1)
+IMAGE_SHIFT = 127.5
+
+
+def patches(x, image_shape: tuple, patch: int):
+    """An image's patches: x (..., H*W*C) -> (..., (H/p)(W/p), p*p*C), patches in row-major
+    order, each one's pixels row-major (p, p, C); torch tensors or NumPy arrays alike."""
+    h, w, c = image_shape
+    lead = tuple(x.shape[:-1])
+    n = len(lead)
+    grid = x.reshape(*lead, h // patch, patch, w // patch, patch, c)
+    order = (*range(n), n, n + 2, n + 1, n + 3, n + 4)
+    grid = grid.permute(order) if isinstance(x, torch.Tensor) else grid.transpose(order)
+    return grid.reshape(*lead, (h // patch) * (w // patch), patch * patch * c)
+
+
+def check_image_config(image_shape: tuple, patch: int, patch_channels: int, input_size: int) -> None:
+    """ValueError (one line) unless an image of `image_shape` cut into `patch`-pixel patches fits
+    a state of `input_size` values."""
+    if len(image_shape) != 3 or min(image_shape) < 1:
+        raise ValueError(f"an image shape is (H, W, C), positive, got {tuple(image_shape)}")
+    h, w, c = image_shape
+    if patch < 1 or h % patch or w % patch:
+        raise ValueError(f"the encoder's patch size {patch} must divide the image's {h} x {w} pixels")
+    if patch_channels < 1:
+        raise ValueError(f"the encoder needs at least one channel per patch, got {patch_channels}")
+    if h * w * c > input_size:
+        raise ValueError(f"an image of {h} x {w} x {c} = {h * w * c} values does not fit a state of {input_size}")
+
+
+def encoded_size(image_shape: tuple, patch: int, patch_channels: int, input_size: int) -> int:
+    """The feature extractor's input size: the patches' channels and the vector part."""
+    h, w, c = image_shape
+    return (h // patch) * (w // patch) * patch_channels + input_size - h * w * c
+
+
+def pixel_weights(weight, bias) -> tuple:
+    """The encoder's FC layer applied to raw pixels: (W / IMAGE_SHIFT, b - sum_j W_j), so that
+    raw @ W'^T + b' = ((raw - IMAGE_SHIFT) / IMAGE_SHIFT) @ W^T + b (no pass over the pixels to
+    normalise them). weight (..., c, ppC), bias (..., c); torch or NumPy."""
+    return weight / IMAGE_SHIFT, bias - weight.sum(-1)
+
+
+def encode_numpy(x: np.ndarray, weight: np.ndarray, bias: np.ndarray, vector: np.ndarray,
+                 image_shape: tuple, patch: int) -> np.ndarray:
+    """The encoder on one raw state x (d,) with `pixel_weights` (c, ppC) / (K, c, ppC) and (c,) /
+    (K, c), followed by the normalised vector part (v,) / (K, v): the feature extractor's input,
+    (encoded,) or (K, encoded)."""
+    values = int(np.prod(image_shape))
+    p = patches(x[:values], image_shape, patch)  # (P, ppC)
+    e = np.maximum(p @ np.swapaxes(weight, -1, -2) + bias[..., None, :], 0.0)  # (P, c) or (K, P, c)
+    e = e.reshape(*e.shape[:-2], -1)
+    return np.concatenate([e, np.broadcast_to(vector, (*e.shape[:-1], vector.shape[-1]))], axis=-1)
+
+
+class PatchLayer(torch.autograd.Function):
+    """ReLU(patches @ W_m^T + b_m) for each member m, fused: patches (K, M, ppC) (no gradient),
+    weight (K, c, ppC), bias (K, c) -> (K, M, c). One GEMM per member forward and for the weight
+    gradient, written into one output tensor (as a batched product, the weight gradient's
+    (ppC x M) @ (M x c) ran ~5x slower; a stack of the members' outputs and a separate ReLU each
+    cost another pass over them)."""
+
+    @staticmethod
+    def forward(ctx, patches: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+        K, M, _ = patches.shape
+        out = patches.new_empty(K, M, weight.shape[1])
+        for m in range(K):
+            torch.mm(patches[m], weight[m].t(), out=out[m])
+        out.add_(bias[:, None, :]).clamp_(min=0.0)
+        ctx.save_for_backward(patches, out)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        patches, out = ctx.saved_tensors
+        grad = torch.ops.aten.threshold_backward(grad, out, 0.0)
+        weight_grad = torch.stack([grad[m].t() @ patches[m] for m in range(len(grad))])
+        return None, weight_grad, grad.sum(1)

@@ -1,0 +1,126 @@
+"""Image states (issue 53): the pixel navigation tasks, their datasets, and reward models with an
+image encoder in every architecture (batched, per member and online alike; trained, saved, served)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from nmrm_ros.datasets.screening import generate_screened
+from nmrm_ros.datasets.trajectories import TrajectoryDataset, concatenate
+from nmrm_ros.mil import ARCHITECTURES, OnlineRewardModel, fit, load_checkpoint, load_train_config, model_config
+from nmrm_ros.mil.data import BagTensors, normalisation
+from nmrm_ros.mil.ensemble import init_ensemble
+from nmrm_ros.mil.models import ModelConfig, build_model
+from nmrm_ros.tasks import PIXEL_TASKS, make_env, task_info
+from nmrm_ros.tasks.navigation import NavigationEnv
+from nmrm_ros.tasks.pixel_navigation import IMAGE_SIZE, pixel_dataset, render_positions
+
+
+@pytest.fixture(scope="module")
+def key_data():
+    """60 screened Key episodes and their pixel version."""
+    ds = generate_screened("key", 60, seed=5)
+    return ds, pixel_dataset(ds, "key_pixels")
+
+
+def test_pixel_task_info_and_env():
+    for task in PIXEL_TASKS:
+        info = task_info(task)
+        assert info.image_shape == (IMAGE_SIZE, IMAGE_SIZE, 3) and info.state_size == info.image_values == 3072
+        assert info.privileged_size == 2 and info.pixels_of == task.removesuffix("_pixels")
+        assert info.family == "navigation" and not info.navigation
+    env, plain = make_env("key_pixels"), NavigationEnv("key")
+    obs, info = env.reset(seed=3)
+    position, _ = plain.reset(seed=3)
+    assert obs.shape == (3072,) and env.observation_space.contains(obs)
+    np.testing.assert_array_equal(info["privileged"], position)  # the same simulator, the same draws
+    obs, _, _, _, info = env.step(4)
+    np.testing.assert_array_equal(info["privileged"], plain.step(4)[0])
+    with pytest.raises(ValueError, match="discrete actions only"):
+        make_env("key_pixels", continuous=True)
+
+
+def test_the_image_shows_the_agent_where_it_is():
+    positions = np.array([[0.1, 0.1], [0.5, 0.9], [0.93, 0.47]])
+    images = render_positions("key", positions)
+    assert images.shape == (3, IMAGE_SIZE, IMAGE_SIZE, 3) and images.dtype == np.uint8
+    for image, (x, y) in zip(images, positions):
+        row, col = np.unravel_index(np.argmax(image[..., 0].astype(int) - image[..., 1]), image.shape[:2])
+        assert abs(col + 0.5 - x * IMAGE_SIZE) <= 1.0 and abs(row + 0.5 - (1 - y) * IMAGE_SIZE) <= 1.0
+
+
+def test_a_pixel_dataset_is_its_state_dataset_rendered(key_data, tmp_path):
+    ds, px = key_data
+    assert px.task == "key_pixels" and px.states.dtype == np.uint8 and px.states.shape == (60, 100, 3072)
+    np.testing.assert_array_equal(px.returns, ds.returns)
+    np.testing.assert_array_equal(px.rewards, ds.rewards)
+    np.testing.assert_array_equal(px.privileged, ds.states)
+    assert px.final_states.shape == (60, 3072)
+    back = TrajectoryDataset.load(px.save(tmp_path / "px"))
+    assert back.states.dtype == np.uint8
+    np.testing.assert_array_equal(back.states, px.states)
+    np.testing.assert_array_equal(back.privileged, px.privileged)
+    both = concatenate([px.subset(np.arange(10)), px.subset(np.arange(10, 20))])
+    np.testing.assert_array_equal(both.privileged, px.privileged[:20])
+    with pytest.raises(ValueError, match="rendered from a key dataset"):
+        pixel_dataset(generate_screened("timer", 5, seed=0), "key_pixels")
+
+
+def test_pixels_are_normalised_by_a_fixed_shift_the_vector_by_the_data(key_data):
+    _, px = key_data
+    shift, scale = normalisation(px, "standard", image_values=3072)
+    assert shift.shape == (3072,) and np.all(shift == 127.5) and np.all(scale == 127.5)
+    assert load_train_config("key_pixels") == load_train_config("key")  # a pixel task takes its state task's
+
+
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_every_architecture_reads_images_alike_batched_per_member_and_online(arch, key_data):
+    _, px = key_data
+    cfg = model_config(arch, "key_pixels", px.state_size, dropout=0.1)
+    assert cfg.image_shape == (IMAGE_SIZE, IMAGE_SIZE, 3) and cfg.encoded_size == 8 * 8 * 8
+    ens = init_ensemble(cfg, [0, 1, 2]).eval()
+    ens.input_shift.fill_(127.5)
+    ens.input_scale.fill_(127.5)
+    bags = BagTensors(px.subset(np.arange(4)))
+    x, lengths, _ = bags.batch(torch.arange(4))
+    assert x.dtype == torch.uint8
+    with torch.no_grad():
+        out = ens(x, lengths)
+        same = ens(x.float(), lengths)  # float pixels: the same model
+        member = ens.member(1)(x.float(), lengths)
+    torch.testing.assert_close(out.rewards, same.rewards)
+    torch.testing.assert_close(out.rewards[1], member.rewards, atol=1e-5, rtol=1e-5)
+    online = OnlineRewardModel(ens, served="h")
+    n = int(px.lengths[0])
+    rewards = online.episode_rewards(px.states[0, :n].astype(np.float64))
+    np.testing.assert_allclose(rewards, out.rewards.mean(0)[0, :n].numpy(), atol=1e-5)
+
+
+def test_a_pixel_model_trains_saves_and_serves(key_data, tmp_path):
+    _, px = key_data
+    cfg = load_train_config("key_pixels", max_epochs=2, threads=1)
+    run = fit(px, "csc_lstm", cfg, members=2, out=tmp_path / "pixels", progress=False)
+    assert run.meta.metrics["epochs_run"] == 2
+    model, meta = load_checkpoint(tmp_path / "pixels", task="key_pixels")
+    assert model.config.image_shape == (IMAGE_SIZE, IMAGE_SIZE, 3)
+    online = OnlineRewardModel.from_checkpoint(tmp_path / "pixels", task="key_pixels")
+    n = int(px.lengths[0])
+    rewards = online.episode_rewards(px.states[0, :n].astype(np.float64))
+    with torch.no_grad():
+        batched = model(torch.as_tensor(px.states[:1, :n]), torch.tensor([n])).rewards.mean(0)[0]
+    np.testing.assert_allclose(rewards, batched.numpy(), atol=1e-5)
+
+
+def test_image_configs_that_do_not_fit_are_one_line_errors():
+    with pytest.raises(ValueError, match="patch size 5 must divide"):
+        build_model(ModelConfig("csc_lstm", 3072, image_shape=(32, 32, 3), patch=5))
+    with pytest.raises(ValueError, match="does not fit a state of 100"):
+        build_model(ModelConfig("csc_lstm", 100, image_shape=(32, 32, 3)))
+    with pytest.raises(ValueError, match="at least one channel"):
+        build_model(ModelConfig("csc_lstm", 3072, image_shape=(32, 32, 3), patch_channels=0))
+    config = ModelConfig("csc_lstm", 3072, image_shape=(32, 32, 3))
+    assert ModelConfig.from_dict(config.to_dict()) == config
+    old = {k: v for k, v in config.to_dict().items() if k not in ("image_shape", "patch", "patch_channels")}
+    assert ModelConfig.from_dict(old).image_shape == ()  # a checkpoint from before images
