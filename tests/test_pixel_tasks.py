@@ -124,3 +124,20 @@ def test_image_configs_that_do_not_fit_are_one_line_errors():
     assert ModelConfig.from_dict(config.to_dict()) == config
     old = {k: v for k, v in config.to_dict().items() if k not in ("image_shape", "patch", "patch_channels")}
     assert ModelConfig.from_dict(old).image_shape == ()  # a checkpoint from before images
+
+
+def test_agents_on_a_pixel_task_are_judged_on_the_true_position():
+    from nmrm_ros.rl.wrappers import make_reward_env
+
+    oracle_env, state_env = make_reward_env("key_pixels", "oracle", seed=4), make_reward_env("key", "oracle", seed=4)
+    obs, _ = oracle_env.reset()
+    plain, _ = state_env.reset()
+    assert obs.shape == (3072 + 1,)  # the image and the oracle's hidden state
+    np.testing.assert_array_equal(obs[-1:], plain[-1:])
+    actions = np.random.default_rng(0).integers(0, 5, 100)
+    total = [0.0, 0.0]
+    for a in actions:
+        for i, env in enumerate((oracle_env, state_env)):
+            _, reward, _, truncated, info = env.step(int(a))
+            total[i] += reward
+    assert total[0] == total[1] and info["oracle_return"] == total[1]

@@ -22,13 +22,19 @@ ORACLES: dict[str, type[Oracle]] = {
 
 
 def make_oracle(task: str, oracle: str = "") -> Oracle:
-    """The oracle of a task or toy dataset, or (`oracle` = "<module>:<function>") a user's oracle
-    function on `task`; ValueError (one line) if there is none."""
+    """The oracle of a task or toy dataset (a pixel task's: its state task's, which judges the
+    privileged state), or (`oracle` = "<module>:<function>") a user's oracle function on `task`;
+    ValueError (one line) if there is none."""
     if oracle:
         from ..tasks import task_info
 
         info = task_info(task)
         return FunctionOracle(oracle, task, info.state_size, 1 if info.discrete else info.action_size)
+    if task not in ORACLES and ":" not in task:
+        from ..tasks import TASKS, task_info
+
+        if task in TASKS and task_info(task).pixels_of:  # a pixel task: its state task's, on the privileged state
+            return ORACLES[task_info(task).pixels_of]()
     try:
         return ORACLES[task]()
     except KeyError:

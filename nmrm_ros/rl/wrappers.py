@@ -61,6 +61,9 @@ class EpisodeSeeds(gym.Wrapper):
 
 
 class NonMarkovianRewardWrapper(gym.Wrapper):
+    #: the stepper is stepped with the privileged state where there is one (an oracle's tracker)
+    stepper_sees_privileged = False
+
     """Replace the env's reward by a stepper's reward; optionally append its hidden state.
 
     env: a rewardless task env (`nmrm_ros.tasks.make_env`); stepper: gives (r_t, h_{t+1}) per state;
@@ -84,10 +87,13 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
         self._returns = [0.0, 0.0]
         self._states: list = []  # s_0..s_t of the episode in progress (for swap_stepper)
 
-    def _consume(self, state: np.ndarray) -> np.ndarray:
-        """Step both trackers with s_t; remember r_t; return the observation."""
-        reward, hidden = self.stepper.step(state)
-        oracle_reward, _ = self.oracle.step(state)
+    def _consume(self, state: np.ndarray, info: dict) -> np.ndarray:
+        """Step both trackers with s_t (the oracle with the privileged state, `info["privileged"]`,
+        where the task has one: e.g. the position behind a pixel task's image); remember r_t;
+        return the observation."""
+        privileged = info.get("privileged", state)
+        reward, hidden = self.stepper.step(privileged if self.stepper_sees_privileged else state)
+        oracle_reward, _ = self.oracle.step(privileged)
         self._pending = (float(reward), float(oracle_reward))
         self._states.append(np.array(state))  # a copy: an env may reuse its buffer
         return self._observation(state, hidden)
@@ -117,14 +123,14 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
         self.oracle.reset()
         self._returns = [0.0, 0.0]
         self._states = []
-        return self._consume(state), info
+        return self._consume(state, info), info
 
     def step(self, action):
         state, _, terminated, truncated, info = self.env.step(action)
         reward, oracle_reward = self._pending
         self._returns[0] += reward
         self._returns[1] += oracle_reward
-        obs = self._consume(state)
+        obs = self._consume(state, info)
         info = dict(info, learnt_reward=reward, oracle_reward=oracle_reward)
         if terminated or truncated:
             info.update(learnt_return=self._returns[0], oracle_return=self._returns[1])
@@ -187,6 +193,8 @@ class OracleRewardWrapper(NonMarkovianRewardWrapper):
     """The paper's baselines: the oracle's reward, with its hidden state appended (`hidden=True`)
     or the raw state only (`hidden=False`). The oracle's hidden state is appended as it is
     (unscaled, e.g. Timer's time index 1..100), as in the paper."""
+
+    stepper_sees_privileged = True
 
     def __init__(self, env: gym.Env, task: str, hidden: bool = True, oracle: str = "") -> None:
         judge = make_oracle(task, oracle)
