@@ -141,3 +141,81 @@ def test_agents_on_a_pixel_task_are_judged_on_the_true_position():
             _, reward, _, truncated, info = env.step(int(a))
             total[i] += reward
     assert total[0] == total[1] and info["oracle_return"] == total[1]
+
+
+@pytest.fixture
+def camera_module(tmp_path, monkeypatch):
+    """A user's env whose observation is a camera image (or a Dict of an image and a vector),
+    with the true pose in info["pose"], and an oracle of the pose: +1 a step on the right half
+    once x <= 0.25 was visited."""
+    import sys
+    import textwrap
+
+    (tmp_path / "camera_room.py").write_text(textwrap.dedent('''
+        import gymnasium as gym
+        import numpy as np
+
+        class CameraRoom(gym.Env):
+            def __init__(self, with_vector=False, height=24, width=32):
+                self.h, self.w, self.with_vector = height, width, with_vector
+                camera = gym.spaces.Box(0, 255, (height, width, 3), np.uint8)
+                self.observation_space = (gym.spaces.Dict({"camera": camera, "battery": gym.spaces.Box(0, 1, (1,))})
+                                          if with_vector else camera)
+                self.action_space = gym.spaces.Discrete(3)
+            def _obs(self):
+                image = np.zeros((self.h, self.w, 3), np.uint8)
+                image[self.h // 2, int(self.x * (self.w - 1))] = 255
+                if self.with_vector:
+                    return {"camera": image, "battery": np.array([1 - self.t / 20], np.float32)}
+                return image
+            def reset(self, *, seed=None, options=None):
+                super().reset(seed=seed)
+                self.x, self.t = float(self.np_random.uniform(0.3, 0.7)), 0
+                return self._obs(), {"pose": [self.x, 0.5]}
+            def step(self, action):
+                self.x = float(np.clip(self.x + 0.1 * (action - 1), 0, 1))
+                self.t += 1
+                return self._obs(), 0.0, False, self.t >= 20, {"pose": [self.x, 0.5]}
+
+        def oracle(states, actions):
+            seen = np.maximum.accumulate(states[:, 0] <= 0.25)
+            return (seen & (states[:, 0] > 0.5)).astype(float)
+    '''))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield "camera_room"
+    sys.modules.pop("camera_room", None)
+
+
+def test_a_users_camera_env_is_an_image_task(camera_module):
+    from nmrm_ros.datasets.return_screening import screen_by_return
+    from nmrm_ros.oracles import make_oracle
+
+    task = "camera_room:CameraRoom,max_steps=20,image=16x16,privileged=pose"
+    info = task_info(task)
+    assert info.image_shape == (16, 16, 3) and info.state_size == 768 and info.privileged_size == 2
+    env = make_env(task)
+    obs, first = env.reset(seed=0)
+    assert obs.shape == (768,) and 0 < obs.max() <= 255 and first["privileged"].shape == (2,)
+    mixed = task_info("camera_room:CameraRoom,with_vector=true,max_steps=20,privileged=pose")
+    assert mixed.image_shape == (24, 32, 3) and mixed.state_size == 24 * 32 * 3 + 1
+    ds = screen_by_return(task, make_oracle(task, "camera_room:oracle"), 40, pool_size=80, seed=1)
+    assert ds.states.dtype == np.uint8 and ds.privileged.shape == (40, 20, 2)
+    assert ds.returns.max() > 0  # labelled from the pose, which the image shows only coarsely
+    cfg = model_config("csc_lstm", task, ds.state_size)
+    assert (cfg.image_shape, cfg.patch) == ((16, 16, 3), 2)
+    run = fit(ds, "csc_lstm", load_train_config(task, max_epochs=1, threads=1), members=1, progress=False)
+    assert run.model.config.image_shape == (16, 16, 3)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("camera_room:CameraRoom,max_steps=20,image=0x16", "image must be a size HxW"),
+    ("camera_room:CameraRoom,max_steps=20,image=big", "image must be a size HxW"),
+    ("camera_room:CameraRoom,max_steps=20,privileged=nothing", "info has no 'nothing'"),
+    ("gym:CartPole-v1,image=16x16", "holds no image"),
+])
+def test_bad_image_specs_are_one_line_errors(camera_module, spec, message):
+    from nmrm_ros.tasks.gym_task import TaskSpecError
+
+    with pytest.raises(TaskSpecError, match=message) as err:
+        task_info(spec)
+    assert "\n" not in str(err.value)

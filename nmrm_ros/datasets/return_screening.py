@@ -35,7 +35,8 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 def rollout_episodes(task: str, episodes: int, seed: int = 0, policy: Policy | None = None,
                      progress: Callable[[int], None] | None = None) -> list:
-    """`episodes` episodes of `task`: a list of (states (L + 1, d) float32, actions (L, A) float32).
+    """`episodes` episodes of `task`: a list of (states (L + 1, d) float32, actions (L, A) float32),
+    and privileged states (L + 1, p) float32 third where the task has them (`info["privileged"]`).
 
     Episode e is reset with seed `seed + e`; `policy(state) -> action` (None: uniform random,
     the action space seeded with `seed`). A Discrete action is stored as one column."""
@@ -58,19 +59,22 @@ def rollout_episodes(task: str, episodes: int, seed: int = 0, policy: Policy | N
     return out
 
 
-def _episode(env, seed: int, policy: Policy | None) -> tuple[np.ndarray, np.ndarray]:
-    obs, _ = env.reset(seed=seed)
-    states, actions = [np.asarray(obs, np.float32)], []
+def _episode(env, seed: int, policy: Policy | None) -> tuple:
+    obs, info = env.reset(seed=seed)
+    states, actions, privileged = [np.asarray(obs, np.float32)], [], [info.get("privileged")]
     done = False
     while not done:
         action = env.action_space.sample() if policy is None else policy(obs)
-        obs, _, terminated, truncated, _ = env.step(action)
+        obs, _, terminated, truncated, info = env.step(action)
         states.append(np.asarray(obs, np.float32))
         actions.append(np.asarray(action, np.float32).reshape(-1))
+        privileged.append(info.get("privileged"))
         done = terminated or truncated
     if not actions:
         raise TaskSpecError("the episode ended at reset")
-    return np.stack(states), np.stack(actions)
+    if privileged[0] is None:
+        return np.stack(states), np.stack(actions)
+    return np.stack(states), np.stack(actions), np.stack(privileged).astype(np.float32)
 
 
 def return_bins(returns: np.ndarray, bins: int) -> np.ndarray:
@@ -125,19 +129,25 @@ def screen_by_return(task: str, oracle: Oracle, n: int, pool_size: int | None = 
 
 
 def label_rollouts(task: str, oracle: Oracle, pool: list, meta: dict | None = None) -> TrajectoryDataset:
-    """Every episode of `pool` (a list of (states (L + 1, d), actions (L, A)), as `rollout_episodes`
-    gives) labelled by `oracle`, in order: states zero-padded to the longest episode, the last
-    observation of each in `final_states`."""
+    """Every episode of `pool` (a list of (states (L + 1, d), actions (L, A)[, privileged (L + 1,
+    p)]), as `rollout_episodes` gives) labelled by `oracle` (on the privileged states where there
+    are some), in order: states zero-padded to the longest episode, the last observation of each
+    in `final_states`; states that are all pixels are kept as uint8."""
     info = task_info(task)
-    horizon = max(len(a) for _, a in pool)
+    horizon = max(len(item[1]) for item in pool)
     width = pool[0][1].shape[1]
-    states = np.zeros((len(pool), horizon, info.state_size), np.float32)
+    dtype = np.uint8 if info.image_values and info.image_values == info.state_size else np.float32
+    states = np.zeros((len(pool), horizon, info.state_size), dtype)
     actions = np.zeros((len(pool), horizon, width), np.float32)
-    final = np.zeros((len(pool), info.state_size), np.float32)
+    final = np.zeros((len(pool), info.state_size), dtype)
     lengths = np.zeros(len(pool), np.int64)
-    for i, (s, a) in enumerate(pool):
+    with_privileged = all(len(item) == 3 for item in pool)
+    privileged = np.zeros((len(pool), horizon, pool[0][2].shape[1]), np.float32) if with_privileged else None
+    for i, (s, a, *p) in enumerate(pool):
         lengths[i] = len(a)
         states[i, : len(a)], actions[i, : len(a)], final[i] = s[:-1], a, s[-1]
-    labels = oracle.label(states, actions, lengths)
+        if with_privileged:
+            privileged[i, : len(a)] = p[0][:-1]
+    labels = oracle.label(states if privileged is None else privileged, actions, lengths)
     return TrajectoryDataset(task, states, lengths, labels.returns, labels.rewards, labels.hidden,
-                             actions, final, None, dict(meta or {}))
+                             actions, final, None, dict(meta or {}), privileged=privileged)

@@ -16,10 +16,13 @@ K members of an ensemble run it as one batched product (`MILEnsemble`), and the 
 as a NumPy one; it is trained end to end with the rest of the model. Pixels are normalised as
 (x - 127.5) / 127.5 (a fixed shift and scale, `IMAGE_SHIFT`, not the training split's), folded
 into the layer's weights (`pixel_weights`); the input normalisation buffers apply to the vector.
-Cost per frame and member: P * p*p*C * c multiply-adds (32 x 32 x 3, p 4, c 8: 24,576).
+Cost per frame and member: P * p*p*C * c multiply-adds (32 x 32 x 3, p 4, c 8: 24,576). The
+patch side is `default_patch` of the image's size (~8 x 8 patches).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import torch
@@ -38,6 +41,15 @@ def patches(x, image_shape: tuple, patch: int):
     order = (*range(n), n, n + 2, n + 1, n + 3, n + 4)
     grid = grid.permute(order) if isinstance(x, torch.Tensor) else grid.transpose(order)
     return grid.reshape(*lead, (h // patch) * (w // patch), patch * patch * c)
+
+
+def default_patch(height: int, width: int) -> int:
+    """The patch side the models take for an image of height x width: the largest that divides
+    both and leaves at least 8 patches across the shorter side (32 x 32: 4, 64 x 64: 8, 96 x 96:
+    12, 84 x 84: 7), so the encoder's output (P * c values) stays ~64 patches whatever the size."""
+    common = math.gcd(int(height), int(width))
+    limit = max(1, min(height, width) // 8)
+    return max(d for d in range(1, limit + 1) if common % d == 0)
 
 
 def check_image_config(image_shape: tuple, patch: int, patch_channels: int, input_size: int) -> None:

@@ -27,7 +27,7 @@ from torch import nn
 
 from .architectures import REGISTRY, architecture
 from .dropout import dropout_mask
-from .image_encoder import check_image_config, encoded_size, patches, pixel_weights
+from .image_encoder import check_image_config, default_patch, encoded_size, patches, pixel_weights
 
 ARCHITECTURES = tuple(REGISTRY)
 ARCHITECTURE_NAMES = {name: arch.title for name, arch in REGISTRY.items()}
@@ -267,7 +267,8 @@ def model_config(architecture: str, task: str, input_size: int, dropout: float =
     hidden_size = max(int(hidden_size), REGISTRY[architecture].min_hidden_size)
     image_shape = image_shape_of(task)
     if image_shape:
-        check_image_config(image_shape, 4, 8, int(input_size))
+        sizes["patch"] = default_patch(*image_shape[:2])
+        check_image_config(image_shape, sizes["patch"], 8, int(input_size))
     return ModelConfig(architecture=architecture, input_size=input_size, hidden_size=hidden_size,
                        dropout=dropout, image_shape=image_shape, **sizes)
 

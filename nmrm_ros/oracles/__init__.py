@@ -29,7 +29,8 @@ def make_oracle(task: str, oracle: str = "") -> Oracle:
         from ..tasks import task_info
 
         info = task_info(task)
-        return FunctionOracle(oracle, task, info.state_size, 1 if info.discrete else info.action_size)
+        return FunctionOracle(oracle, task, info.privileged_size or info.state_size,
+                              1 if info.discrete else info.action_size)
     if task not in ORACLES and ":" not in task:
         from ..tasks import TASKS, task_info
 

@@ -104,19 +104,22 @@ class LoopResult:
 def agent_episodes(agent, wrapper_env, episodes: int, seed: int) -> list:
     """`episodes` episodes of `agent` acting as it explores (SB3 predict(deterministic=False)) in
     `wrapper_env` (a reward wrapper of the model it learns from), episode e reset with seed
-    seed + e: a list of (states (L + 1, d), actions (L, A)) of the raw states."""
+    seed + e: a list of (states (L + 1, d), actions (L, A)[, privileged (L + 1, p)]) of the raw
+    states (`label_rollouts`)."""
     d = wrapper_env.unwrapped.observation_space.shape[0]
     out = []
     for e in range(episodes):
-        obs, _ = wrapper_env.reset(seed=seed + e)
-        states, actions, done = [obs[:d].copy()], [], False
+        obs, info = wrapper_env.reset(seed=seed + e)
+        states, actions, privileged, done = [obs[:d].copy()], [], [info.get("privileged")], False
         while not done:
             action = agent.predict(obs, deterministic=False)[0]
-            obs, _, terminated, truncated, _ = wrapper_env.step(action)
+            obs, _, terminated, truncated, info = wrapper_env.step(action)
             states.append(obs[:d].copy())
             actions.append(np.asarray(action, np.float32).reshape(-1))
+            privileged.append(info.get("privileged"))
             done = terminated or truncated
-        out.append((np.stack(states), np.stack(actions)))
+        episode = (np.stack(states), np.stack(actions))
+        out.append(episode if privileged[0] is None else (*episode, np.stack(privileged).astype(np.float32)))
     return out
 
 

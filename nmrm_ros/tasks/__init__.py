@@ -40,9 +40,13 @@ def _spec_info(task: str) -> TaskInfo:
         act = env.action_space
         discrete = isinstance(act, gym.spaces.Discrete)
         instruction, legend = _module_words(task)
+        privileged = 0
+        if env.spec_.privileged is not None:  # its size: that of the first reset's
+            privileged = int(env.reset(seed=0)[1]["privileged"].size)
         return TaskInfo(task, int(env.observation_space.shape[0]), discrete,
                         int(act.n) if discrete else int(act.shape[0]), env.episode_length, renders=True,
-                        instruction=instruction, legend=legend)
+                        instruction=instruction, legend=legend, image_shape=env.image_shape,
+                        privileged_size=privileged)
     finally:
         env.close()
 

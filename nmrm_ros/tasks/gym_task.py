@@ -9,15 +9,22 @@ for a new task:
                                          package, e.g. my_robot.sim:make_env,speed=0.5
 
 `key=value` pairs are keyword arguments of `gym.make` or of the class / factory; values are read
-as YAML scalars (`3` int, `0.5` float, `true` bool, else a string). Two keys are ours:
+as YAML scalars (`3` int, `0.5` float, `true` bool, else a string). Four keys are ours:
 `max_steps=N` ends episodes after N steps (a TimeLimit) where the environment has no limit of
 its own; without either, the task is refused, since MIL needs whole trajectories. `xy=i/j` names
 the state dimensions the labelling page draws as a 2D path (e.g. a robot's position).
+`image=HxW` resizes the observation's images to H x W pixels (bilinear). `privileged=<key>` names
+the entry of the env's `info` that is its privileged state (e.g. the simulator's true positions
+behind a camera image): the oracle labels and judges with it, a model and an agent never see it.
 
 What the package sees of the environment (`GymTaskEnv`):
 - the state: the observation flattened to a float32 vector (`gymnasium.spaces.flatten`: a Box
   as is, a Discrete / MultiBinary / MultiDiscrete one-hot, Tuple and Dict concatenated); spaces
-  that have no fixed-size flattening (Text, Graph, Sequence) are refused;
+  that have no fixed-size flattening (Text, Graph, Sequence) are refused. An image (a uint8 Box
+  H x W x C with C 1, 3 or 4, or H x W) — the observation, or entries of a Dict observation —
+  comes first, as its pixels (0..255, row-major H, W, C; several images resized to one size and
+  stacked along C), then the rest flattened: `TaskInfo.image_shape` says so, and a reward model
+  reads it through its image encoder (`nmrm_ros.mil.image_encoder`);
 - the actions: Discrete(n) or a 1-D Box, as the environment has them;
 - no reward: the environment's own reward is not what is learnt; it is kept in
   `info["env_reward"]` for comparison only.
@@ -56,6 +63,8 @@ class TaskSpec:
     kwargs: dict = field(default_factory=dict)
     max_steps: int | None = None
     xy: tuple | None = None  # state dimensions the labelling page draws as a 2D path
+    image: tuple | None = None  # (H, W) the observation's images are resized to
+    privileged: str | None = None  # the info entry that is the privileged state
 
 
 def parse_task_spec(text: str) -> TaskSpec:
@@ -84,15 +93,29 @@ def parse_task_spec(text: str) -> TaskSpec:
             raise TaskSpecError(f"task {text!r}: xy must name two state dimensions as i/j, e.g. xy=0/1, "
                                 f"got {xy!r}") from None
         xy = (i, j)
+    image = kwargs.pop("image", None)
+    if image is not None:
+        try:
+            h, w = (int(v) for v in str(image).lower().split("x"))
+            if h < 1 or w < 1:
+                raise ValueError
+        except ValueError:
+            raise TaskSpecError(f"task {text!r}: image must be a size HxW in pixels, e.g. image=64x64, "
+                                f"got {image!r}") from None
+        image = (h, w)
+    privileged = kwargs.pop("privileged", None)
+    if privileged is not None and (not isinstance(privileged, str) or not privileged):
+        raise TaskSpecError(f"task {text!r}: privileged must name an entry of the env's info, got {privileged!r}")
+    extra = {"image": image, "privileged": privileged}
     if head.startswith(GYM_PREFIX):
         target = head[len(GYM_PREFIX):]
         if not target:
             raise TaskSpecError(f"task {text!r}: give a Gymnasium id after gym:, e.g. gym:MountainCar-v0")
-        return TaskSpec(text, "gym", target, kwargs, max_steps, xy)
+        return TaskSpec(text, "gym", target, kwargs, max_steps, xy, **extra)
     module, _, attribute = head.partition(":")
     if not module or not attribute:
         raise TaskSpecError(f"task {text!r}: use gym:<id> or <module>:<attribute>")
-    return TaskSpec(text, "import", head, kwargs, max_steps, xy)
+    return TaskSpec(text, "import", head, kwargs, max_steps, xy, **extra)
 
 
 def _construct(spec: TaskSpec, render: bool = False) -> gym.Env:
@@ -144,11 +167,76 @@ def _episode_limit(env: gym.Env) -> int | None:
     return limit
 
 
+def is_image_space(space: gym.Space) -> bool:
+    """A uint8 Box of shape (H, W, C) with C 1, 3 or 4, or (H, W): an image."""
+    return (isinstance(space, gym.spaces.Box) and space.dtype == np.uint8
+            and (len(space.shape) == 2 or (len(space.shape) == 3 and space.shape[2] in (1, 3, 4))))
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """How an observation becomes a state: `images` (the keys of the image entries: () for an
+    image observation, none for no image) resized to `size` (H, W) and stacked to `channels`,
+    then the rest (`rest`: the non-image part's space, or None) flattened."""
+
+    images: tuple | None
+    size: tuple
+    channels: int
+    rest: gym.Space | None
+
+    @property
+    def image_shape(self) -> tuple:
+        return (*self.size, self.channels) if self.images is not None else ()
+
+    def state_size(self) -> int:
+        pixels = int(np.prod(self.image_shape)) if self.images is not None else 0
+        return pixels + (gym.spaces.flatdim(self.rest) if self.rest is not None else 0)
+
+
+def observation_layout(space: gym.Space, spec: TaskSpec) -> ObservationLayout:
+    """The layout of observations of `space` (TaskSpecError, one line, if there is none)."""
+    if is_image_space(space):
+        entries, rest = {(): space}, None
+    elif isinstance(space, gym.spaces.Dict) and any(is_image_space(s) for s in space.spaces.values()):
+        entries = {k: s for k, s in space.spaces.items() if is_image_space(s)}
+        others = {k: s for k, s in space.spaces.items() if k not in entries}
+        rest = gym.spaces.Dict(others) if others else None
+    else:
+        if spec.image is not None:
+            raise TaskSpecError(f"task {spec.text!r}: image={spec.image[0]}x{spec.image[1]} but the observation "
+                                f"space {space} holds no image (a uint8 Box H x W x C)")
+        return ObservationLayout(None, (), 0, space)
+    sizes = {tuple(s.shape[:2]) for s in entries.values()}
+    if spec.image is None and len(sizes) > 1:
+        raise TaskSpecError(f"task {spec.text!r}: the images are of sizes {sorted(sizes)}: give one size to "
+                            f"resize them to, e.g. image=64x64")
+    size = spec.image or sizes.pop()
+    channels = sum(1 if len(s.shape) == 2 else s.shape[2] for s in entries.values())
+    images = () if () in entries else tuple(entries)
+    return ObservationLayout(images, tuple(size), channels, rest)
+
+
+def resize_image(image: np.ndarray, size: tuple) -> np.ndarray:
+    """An image (H, W[, C]) uint8 resized to `size` (H', W') bilinearly: (H', W', C)."""
+    from PIL import Image
+
+    image = np.asarray(image, dtype=np.uint8)
+    if image.ndim == 2:
+        image = image[..., None]
+    if image.shape[:2] == tuple(size):
+        return image
+    planes = [np.asarray(Image.fromarray(image[..., c]).resize((size[1], size[0]), Image.BILINEAR))
+              for c in range(image.shape[2])]
+    return np.stack(planes, axis=-1)
+
+
 def _check_spaces(env: gym.Env, spec: TaskSpec) -> None:
     obs, act = env.observation_space, env.action_space
     try:
-        size = gym.spaces.flatdim(obs)
-    except (ValueError, NotImplementedError, TypeError):
+        size = observation_layout(obs, spec).state_size()
+    except (ValueError, NotImplementedError, TypeError) as exc:
+        if isinstance(exc, TaskSpecError):
+            raise
         raise TaskSpecError(f"task {spec.text!r}: observation space {obs} has no fixed-size "
                             f"flattening (use Box, Discrete, MultiBinary, MultiDiscrete, Tuple or Dict)") from None
     if size < 1:
@@ -161,8 +249,10 @@ def _check_spaces(env: gym.Env, spec: TaskSpec) -> None:
 
 
 class GymTaskEnv(gym.Wrapper):
-    """A user's env as a task: flattened float32 states, no reward (kept as info["env_reward"]),
-    episodes of at most `episode_length` steps (the env's limit or `max_steps`)."""
+    """A user's env as a task: flattened float32 states (an image's pixels first, resized:
+    `ObservationLayout`), no reward (kept as info["env_reward"]), episodes of at most
+    `episode_length` steps (the env's limit or `max_steps`); with `privileged=<key>`,
+    info["privileged"] is info[key] as a float32 vector."""
 
     def __init__(self, env: gym.Env, spec: TaskSpec) -> None:
         _check_spaces(env, spec)
@@ -175,9 +265,12 @@ class GymTaskEnv(gym.Wrapper):
                                 f"max_steps=N to the task (e.g. {spec.text.split(',')[0]},max_steps=500)")
         super().__init__(env)
         self.task = spec.text
+        self.spec_ = spec
         self.episode_length = int(limit)
         self._source_space = env.observation_space
-        size = gym.spaces.flatdim(self._source_space)
+        self.layout = observation_layout(self._source_space, spec)
+        self.image_shape = self.layout.image_shape
+        size = self.layout.state_size()
         if spec.xy is not None and max(spec.xy) >= size:
             raise TaskSpecError(f"task {spec.text!r}: xy={spec.xy[0]}/{spec.xy[1]} but the state has "
                                 f"{size} dimensions (0..{size - 1})")
@@ -185,18 +278,37 @@ class GymTaskEnv(gym.Wrapper):
         self._t = 0
 
     def _flat(self, obs) -> np.ndarray:
-        return np.asarray(gym.spaces.flatten(self._source_space, obs), dtype=np.float32).reshape(-1)
+        layout = self.layout
+        if layout.images is None:
+            return np.asarray(gym.spaces.flatten(self._source_space, obs), dtype=np.float32).reshape(-1)
+        images = [obs] if layout.images == () else [obs[k] for k in layout.images]
+        parts = [np.concatenate([resize_image(im, layout.size) for im in images], axis=-1).reshape(-1)]
+        if layout.rest is not None:
+            parts.append(gym.spaces.flatten(layout.rest, {k: obs[k] for k in layout.rest.spaces}))
+        return np.concatenate(parts).astype(np.float32)
+
+    def _privileged(self, info: dict) -> dict:
+        key = self.spec_.privileged
+        if key is None:
+            return info
+        if key not in info:
+            raise TaskSpecError(f"task {self.task!r}: privileged={key} but the env's info has no {key!r} "
+                                f"(it has {sorted(info)})")
+        value = np.asarray(info[key], dtype=np.float32).reshape(-1)
+        if not np.all(np.isfinite(value)):
+            raise TaskSpecError(f"task {self.task!r}: the privileged state info[{key!r}] holds NaN or inf")
+        return dict(info, privileged=value)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         self._t = 0
-        return self._flat(obs), dict(info, t=0)
+        return self._flat(obs), self._privileged(dict(info, t=0))
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._t += 1
         info = dict(info, t=self._t, env_reward=float(reward))
-        return self._flat(obs), 0.0, bool(terminated), bool(truncated), info
+        return self._flat(obs), 0.0, bool(terminated), bool(truncated), self._privileged(info)
 
 
 def make_gym_task_env(task: str, render: bool = False) -> GymTaskEnv:
