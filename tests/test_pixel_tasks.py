@@ -219,3 +219,24 @@ def test_bad_image_specs_are_one_line_errors(camera_module, spec, message):
     with pytest.raises(TaskSpecError, match=message) as err:
         task_info(spec)
     assert "\n" not in str(err.value)
+
+
+def test_the_minigrid_example_is_a_camera_task_with_a_memory_oracle(monkeypatch):
+    from pathlib import Path
+
+    from nmrm_ros.datasets.return_screening import screen_by_return
+    from nmrm_ros.oracles import make_oracle
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "examples"))
+    task = "minigrid_corners:make_env,max_steps=60,privileged=pose"
+    info = task_info(task)
+    assert info.image_shape == (48, 48, 3) and info.privileged_size == 3 and info.action_size == 3
+    assert info.instruction.startswith("The red triangle")
+    ds = screen_by_return(task, make_oracle(task, "minigrid_corners:oracle"), 10, pool_size=30, seed=2)
+    assert ds.states.dtype == np.uint8 and ds.privileged.shape[2] == 3
+    x, y = ds.privileged[..., 0], ds.privileged[..., 1]
+    for i in range(len(ds)):  # the oracle pays the bottom-left only after the top-right
+        n = int(ds.lengths[i])
+        visited = np.maximum.accumulate((x[i, :n] >= 3) & (y[i, :n] <= 2))
+        assert ds.returns[i] == float((visited & (x[i, :n] <= 2) & (y[i, :n] >= 3)).sum())
+    assert model_config("csc_lstm", task, ds.state_size).patch == 6
