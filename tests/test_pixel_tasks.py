@@ -240,3 +240,22 @@ def test_the_minigrid_example_is_a_camera_task_with_a_memory_oracle(monkeypatch)
         visited = np.maximum.accumulate((x[i, :n] >= 3) & (y[i, :n] <= 2))
         assert ds.returns[i] == float((visited & (x[i, :n] <= 2) & (y[i, :n] >= 3)).sum())
     assert model_config("csc_lstm", task, ds.state_size).patch == 6
+
+
+def test_an_agent_may_see_the_privileged_state_while_the_model_sees_pixels(key_data, tmp_path):
+    from nmrm_ros.rl import evaluate_agent, train_agent
+    from nmrm_ros.rl.wrappers import make_reward_env
+
+    _, px = key_data
+    fit(px, "csc_lstm", load_train_config("key_pixels", max_epochs=1, threads=1), out=tmp_path / "m", progress=False)
+    env = make_reward_env("key_pixels", "model", tmp_path / "m", seed=0, observe="privileged")
+    obs, info = env.reset()
+    assert obs.shape == (2 + env.stepper.served_size,)
+    np.testing.assert_array_equal(obs[:2], info["privileged"])
+    run = train_agent("key_pixels", "model", tmp_path / "m", episodes=2, out=tmp_path / "agent", progress=False,
+                      observe="privileged", learning_starts=10)
+    assert run.out is not None
+    result = evaluate_agent(tmp_path / "agent" / "policy.zip", "key_pixels", episodes=2)  # observe from agent.json
+    assert len(result.returns) == 2
+    with pytest.raises(ValueError, match="no privileged state"):
+        make_reward_env("key", "oracle", observe="privileged")

@@ -26,13 +26,16 @@ def rl_train(
     envs: int = typer.Option(1, min=1, help="environments stepped together (SB3 DummyVecEnv)"),
     out: Path = typer.Option(Path("runs/agent"), help="output directory: policy.zip, curve.csv, curve.png",
                              callback=writable_dir),
+    observe: str = typer.Option("state", help="what the agent sees beside the served state: state (the "
+                                "task's, e.g. a camera image) | privileged (the task's privileged state)"),
     config: Path = typer.Option(None, help="RL config YAML (default config/rl.yaml)", exists=True,
                                 dir_okay=False, readable=True),
 ) -> None:
     """Train the paper's agent (double DQN, or SAC for Lunar Lander) on a non-Markovian reward;
     every episode is judged by the oracle (curve.csv)."""
     from ..rl import REWARD_KINDS, train_agent
-    from ..tasks import check_task
+    from ..rl.wrappers import OBSERVE
+    from ..tasks import check_task, task_info
 
     check_task(task)
     if reward not in REWARD_KINDS:
@@ -41,8 +44,12 @@ def rl_train(
         raise typer.BadParameter("--reward model needs --checkpoint (or use --reward oracle)")
     if episodes is not None and episodes < 1:
         raise typer.BadParameter(f"--episodes must be at least 1, got {episodes}")
+    if observe not in OBSERVE:
+        raise typer.BadParameter(f"unknown --observe {observe!r}; use one of {', '.join(OBSERVE)}")
+    if observe == "privileged" and not task_info(task).privileged_size:
+        raise typer.BadParameter(f"--observe privileged: task {task} has no privileged state")
     run = train_agent(task, reward, checkpoint=checkpoint, episodes=episodes, seed=seed, out=out,
-                      n_envs=envs, config=config, oracle=oracle)
+                      n_envs=envs, config=config, oracle=oracle, observe=observe)
     steps = sum(r.steps for r in run.curve.records)
     typer.echo(f"{len(run.curve.records)} episodes, {steps} steps in {run.seconds:.0f} s "
                f"({steps / max(run.seconds, 1e-9):.0f} steps/s); oracle return of the last 50 episodes "

@@ -134,7 +134,7 @@ def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, epis
     if env is None:
         served = served_state_of(model, task, checkpoint, meta) if reward == "model" else DEFAULT_SERVED_STATE
         env = make_reward_env(task, reward, checkpoint if reward == "model" else None, seed=seed,
-                              served=served, oracle=oracle)
+                              served=served, oracle=oracle, observe=meta.get("observe", "state"))
     if env.observation_space.shape != model.observation_space.shape:
         raise ValueError(f"the policy observes {model.observation_space.shape}, the {reward} env gives "
                          f"{env.observation_space.shape}")

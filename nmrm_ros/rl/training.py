@@ -207,7 +207,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
                 episodes: int | None = None, seed: int = 0, out: str | Path | None = None,
                 env_seed: int | None = None, n_envs: int = 1, progress: bool = True,
                 config: str | Path | None = None, on_episode=None, served: str | None = None,
-                oracle: str = "", callback: EpisodeCurveCallback | None = None, **overrides) -> AgentRun:
+                oracle: str = "", callback: EpisodeCurveCallback | None = None, observe: str = "state",
+                **overrides) -> AgentRun:
     """Train the paper's agent for `task` on reward `reward` ("model" with `checkpoint`, "oracle",
     "oracle-no-hidden") for `episodes` episodes (default: the config's).
 
@@ -218,7 +219,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     checkpoint's own; `nmrm_ros.mil.served_state`). oracle: a user's oracle function ("<module>:<function>") that
     judges every episode (and is the reward of "oracle" / "oracle-no-hidden"); default the task's.
     callback: an `EpisodeCurveCallback` (or a subclass, e.g. the reward-model loop's rounds) used
-    in place of a plain one; its `max_episodes` is set to `episodes`. overrides:
+    in place of a plain one; its `max_episodes` is set to `episodes`. observe: the agent sees the
+    task's state or its privileged state (`wrappers.OBSERVE`; recorded in agent.json). overrides:
     settings of config/rl.yaml (e.g. learning_starts).
     """
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -235,7 +237,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     episodes = int(cfg["episodes"])
     env_seed = seed if env_seed is None else int(env_seed)
     seeds = [env_seed + i * 10**6 for i in range(n_envs)]
-    envs = [make_reward_env(task, reward, checkpoint, seed=s, served=served, oracle=oracle) for s in seeds]
+    envs = [make_reward_env(task, reward, checkpoint, seed=s, served=served, oracle=oracle, observe=observe)
+            for s in seeds]
     if reward == "model":
         served = envs[0].served  # what the checkpoint serves where `served` was None
     vec = DummyVecEnv([lambda e=e: Monitor(e) for e in envs])
@@ -265,7 +268,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
             "task": task, "reward": reward, "algorithm": algo,
             "checkpoint": policy_checkpoint,
             "checkpoint_sha256": recorded_weights_sha256(policy_checkpoint) if reward == "model" else None,
-            "served_state": served if reward == "model" else None, "oracle": oracle, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
+            "served_state": served if reward == "model" else None, "oracle": oracle, "observe": observe, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
             "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
             "config": cfg}, keeper=keeper, collapse=report)
     if kept is not None:

@@ -30,6 +30,10 @@ import numpy as np
 from ..oracles import Oracle, make_oracle
 
 REWARD_KINDS = ("model", "oracle", "oracle-no-hidden")
+#: what the agent observes beside the served (or the oracle's hidden) state: the task's state
+#: (e.g. a camera image), or its privileged state (e.g. the true position behind the image: for
+#: a pixel task, an agent of vector states while the reward model sees only pixels)
+OBSERVE = ("state", "privileged")
 
 
 class HiddenStateStepper(Protocol):
@@ -68,17 +72,27 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
 
     env: a rewardless task env (`nmrm_ros.tasks.make_env`); stepper: gives (r_t, h_{t+1}) per state;
     task: the task (or an `Oracle`) whose oracle judges the run (info); augment: observe
-    [s_t, h_{t+1}] (else s_t only); hidden_size: size of h (for the observation space).
+    [s_t, h_{t+1}] (else s_t only); hidden_size: size of h (for the observation space); observe:
+    "privileged" puts the privileged state (info["privileged"], `privileged_size` values) where
+    s_t was in the observation (the stepper still steps with s_t).
     """
 
     def __init__(self, env: gym.Env, stepper: HiddenStateStepper, task: str | Oracle, augment: bool,
-                 hidden_size: int) -> None:
+                 hidden_size: int, observe: str = "state", privileged_size: int = 0) -> None:
         super().__init__(env)
+        if observe not in OBSERVE:
+            raise ValueError(f"unknown observation {observe!r}; use one of {', '.join(OBSERVE)}")
+        if observe == "privileged" and privileged_size < 1:
+            raise ValueError("observe privileged: the task has no privileged state")
         self.stepper = stepper
         self.judge = make_oracle(task) if isinstance(task, str) else task
         self.oracle = self.judge.tracker()
         self.augment = augment and hidden_size > 0
+        self.observe = observe
         base = env.observation_space
+        if observe == "privileged":
+            base = gym.spaces.Box(-np.inf, np.inf, (privileged_size,), np.float32)
+            self.observation_space = base
         if self.augment:
             low = np.concatenate([base.low, np.full(hidden_size, -np.inf)]).astype(np.float32)
             high = np.concatenate([base.high, np.full(hidden_size, np.inf)]).astype(np.float32)
@@ -86,6 +100,7 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
         self._pending = (0.0, 0.0)  # (reward, oracle reward) of the current state s_t
         self._returns = [0.0, 0.0]
         self._states: list = []  # s_0..s_t of the episode in progress (for swap_stepper)
+        self._seen: list = []  # what the agent saw of them (`observe`)
 
     def _consume(self, state: np.ndarray, info: dict) -> np.ndarray:
         """Step both trackers with s_t (the oracle with the privileged state, `info["privileged"]`,
@@ -96,9 +111,11 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
         oracle_reward, _ = self.oracle.step(privileged)
         self._pending = (float(reward), float(oracle_reward))
         self._states.append(np.array(state))  # a copy: an env may reuse its buffer
-        return self._observation(state, hidden)
+        self._seen.append(np.array(privileged if self.observe == "privileged" else state))
+        return self._observation(self._seen[-1], hidden)
 
     def _observation(self, state: np.ndarray, hidden: np.ndarray) -> np.ndarray:
+        """[what the agent sees of s_t (`observe`), h_{t+1}]."""
         if not self.augment:
             return np.asarray(state, dtype=np.float32)
         return np.concatenate([np.asarray(state, np.float64), np.asarray(hidden, np.float64)]).astype(np.float32)
@@ -115,14 +132,14 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
         self.stepper = stepper
         self._returns[0] = float(sum(r for r, _ in rewards[:-1]))
         self._pending = (float(rewards[-1][0]), self._pending[1])
-        return self._observation(self._states[-1], rewards[-1][1])
+        return self._observation(self._seen[-1], rewards[-1][1])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         state, info = self.env.reset(seed=seed, options=options)
         self.stepper.reset()
         self.oracle.reset()
         self._returns = [0.0, 0.0]
-        self._states = []
+        self._states, self._seen = [], []
         return self._consume(state, info), info
 
     def step(self, action):
@@ -151,7 +168,7 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
     """
 
     def __init__(self, env: gym.Env, model, task: str | None = None,
-                 served: str | None = None, oracle: str = "") -> None:
+                 served: str | None = None, oracle: str = "", observe: str = "state") -> None:
         from ..mil import OnlineRewardModel
         from ..mil.served_state import DEFAULT_SERVED_STATE
 
@@ -167,7 +184,8 @@ class RewardModelWrapper(NonMarkovianRewardWrapper):
                              f"{env.observation_space.shape[0]}")
         served = online.served
         judge = make_oracle(task, oracle) if oracle else task
-        super().__init__(env, online, judge, augment=True, hidden_size=online.served_size)
+        super().__init__(env, online, judge, augment=True, hidden_size=online.served_size, observe=observe,
+                         privileged_size=_privileged_size(task))
         self.served = served
         self.task = task
 
@@ -196,18 +214,26 @@ class OracleRewardWrapper(NonMarkovianRewardWrapper):
 
     stepper_sees_privileged = True
 
-    def __init__(self, env: gym.Env, task: str, hidden: bool = True, oracle: str = "") -> None:
+    def __init__(self, env: gym.Env, task: str, hidden: bool = True, oracle: str = "", observe: str = "state") -> None:
         judge = make_oracle(task, oracle)
-        super().__init__(env, judge.tracker(), judge, augment=hidden, hidden_size=judge.hidden_size)
+        super().__init__(env, judge.tracker(), judge, augment=hidden, hidden_size=judge.hidden_size,
+                         observe=observe, privileged_size=_privileged_size(task))
+
+
+def _privileged_size(task: str) -> int:
+    from ..tasks import task_info
+
+    return task_info(task).privileged_size
 
 
 def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None,
                     seed: int = 0, continuous: bool = False,
-                    served: str | None = None, oracle: str = "") -> gym.Env:
+                    served: str | None = None, oracle: str = "", observe: str = "state") -> gym.Env:
     """A task env with episode seeds `seed + e` and the reward of `reward` (one of REWARD_KINDS).
 
     reward "model" needs `checkpoint` (a MIL checkpoint trained on `task`); `served`: what of the
-    model's recurrent state the agent observes (`RewardModelWrapper`).
+    model's recurrent state the agent observes (`RewardModelWrapper`); observe: the agent sees the
+    task's state or its privileged state beside it (OBSERVE).
     """
     from ..tasks import make_env
 
@@ -217,7 +243,7 @@ def make_reward_env(task: str, reward: str, checkpoint: str | Path | None = None
     if reward == "model":
         if checkpoint is None:
             raise ValueError("reward 'model' needs a checkpoint")
-        return RewardModelWrapper(env, checkpoint, task=task, served=served, oracle=oracle)
+        return RewardModelWrapper(env, checkpoint, task=task, served=served, oracle=oracle, observe=observe)
     if checkpoint is not None:
         raise ValueError(f"reward {reward!r} takes no checkpoint")
-    return OracleRewardWrapper(env, task, hidden=reward == "oracle", oracle=oracle)
+    return OracleRewardWrapper(env, task, hidden=reward == "oracle", oracle=oracle, observe=observe)
