@@ -53,7 +53,7 @@ def served_size(hidden_size: int, kind: str = DEFAULT_SERVED_STATE, attention: b
 @torch.no_grad()
 def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
                   kind: str = DEFAULT_SERVED_STATE) -> np.ndarray:
-    """Served states (N, T, served_size) of trajectories `states` (N, T, d) float (zero beyond
+    """Served states (N, T, served_size) of trajectories `states` (N, T, d) float or uint8 pixels (zero beyond
     each length). `model`: a `MILEnsemble` (its serving member's state) or a `MILRewardModel`."""
     from .architectures import lstm_cell
     from .ensemble import MILEnsemble, as_ensemble
@@ -62,7 +62,8 @@ def served_states(model, states: np.ndarray, lengths: np.ndarray | None = None,
     ens = as_ensemble(model)
     with torch.random.fork_rng(devices=[]):  # building the one-member view draws fresh weights: not from the caller's stream
         serving = MILEnsemble.from_members([ens.member(int(ens.serving_member))]).eval()
-    x = torch.as_tensor(np.asarray(states, np.float32))
+    states = np.asarray(states)
+    x = torch.as_tensor(states if states.dtype == np.uint8 else states.astype(np.float32))  # pixels stay uint8
     n, t = x.shape[:2]
     lens = torch.full((n,), t) if lengths is None else torch.as_tensor(np.asarray(lengths))
     if not (serving.uses_lstm or serving.uses_attention):

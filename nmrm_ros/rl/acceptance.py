@@ -5,7 +5,8 @@ failed, and a Key model whose agent was paid 87 for episodes the oracle scores ~
 look at the model from the agent's side, on the model's task with its oracle:
 
 1. **Memory** (`memory_check`): does the served state separate what the oracle's hidden state
-   separates? From screened trajectories, take pairs of steps whose states are close (each
+   separates? From screened trajectories, take pairs of steps whose states (the privileged ones
+   where the task has them: a pixel task's positions) are close (each
    coordinate within `state_tol` standard deviations) but whose oracle hidden states differ (by
    more than 10% of its standard deviation): an agent at those two steps observes
    [s_t, served_{t+1}], so if the two served states are (almost) equal it cannot tell the two
@@ -127,14 +128,16 @@ def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, s
 
     judge = make_oracle(task, oracle)
     ds = generate_screened(task, trajectories, seed=seed, oracle=oracle)
-    labels = judge.label(ds.states, lengths=ds.lengths)
+    # what the oracle sees (a pixel task: the privileged state), and where "close" is measured
+    seen = ds.states if ds.privileged is None else ds.privileged
+    labels = judge.label(seen, lengths=ds.lengths)
     if labels.hidden.shape[-1] == 0:
         return MemoryCheck(0, 0.0, None, oracle_hidden=False)
     oracle = labels.hidden
     real = np.argwhere(np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None])
     rng = np.random.default_rng(seed)
     pick = real[rng.choice(len(real), min(steps, len(real)), replace=False)]
-    states = ds.states[pick[:, 0], pick[:, 1]].astype(np.float64)
+    states = seen[pick[:, 0], pick[:, 1]].astype(np.float64)
     hidden = oracle[pick[:, 0], pick[:, 1]]
     pairs = _close_pairs(states, hidden, state_tol)
     served = served_states(model, ds.states, ds.lengths)
