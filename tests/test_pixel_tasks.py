@@ -259,3 +259,26 @@ def test_an_agent_may_see_the_privileged_state_while_the_model_sees_pixels(key_d
     assert len(result.returns) == 2
     with pytest.raises(ValueError, match="no privileged state"):
         make_reward_env("key", "oracle", observe="privileged")
+
+
+def test_two_losses_of_a_pixel_ensemble_before_one_backward(key_data):
+    """feedback both: a return batch and a comparison batch, then one backward. The second
+    forward must not overwrite the pixels the first one's backward reads."""
+    _, px = key_data
+    cfg = model_config("csc_lstm", "key_pixels", px.state_size)
+    x = torch.as_tensor(px.states[:6])
+    lengths = torch.as_tensor(px.lengths[:6])
+    grads = []
+    for together in (False, True):
+        ens = init_ensemble(cfg, [0, 1])
+        ens.input_shift.fill_(127.5)
+        ens.input_scale.fill_(127.5)
+        if together:
+            loss = ens(x[:3], lengths[:3]).returns.sum() + ens(x[3:], lengths[3:]).returns.sum()
+            loss.backward()
+        else:
+            ens(x[:3], lengths[:3]).returns.sum().backward()
+            ens(x[3:], lengths[3:]).returns.sum().backward()
+        grads.append(ens.params["encoder__weight"].grad.clone())
+        assert ens._pixels_held == 0
+    torch.testing.assert_close(grads[0], grads[1])

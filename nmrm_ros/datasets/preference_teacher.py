@@ -14,6 +14,8 @@ same answers.
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import asdict, dataclass
 
@@ -116,5 +118,4 @@ def with_preferences(ds: TrajectoryDataset, pairs: int, teacher: SimulatedTeache
     prefs = teacher.answer(ds, draw_pairs(len(ds), pairs, seed), seed)
     meta = dict(ds.meta, preferences={"teacher": teacher.to_dict(), "pairs_asked": int(pairs),
                                       "answered": int(len(prefs)), "seed": int(seed)})
-    return TrajectoryDataset(ds.task, ds.states, ds.lengths, ds.returns, ds.rewards, ds.hidden, ds.actions,
-                             ds.final_states, ds.classes, meta, prefs)
+    return dataclasses.replace(ds, meta=meta, preferences=prefs)

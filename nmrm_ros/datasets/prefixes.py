@@ -66,6 +66,6 @@ def cut_episodes(ds: TrajectoryDataset, fraction: float, seed: int) -> Trajector
     returns[chosen] = rewards[chosen].sum(axis=1)
     return dataclasses.replace(
         ds, states=keep(ds.states), lengths=new_lengths.astype(ds.lengths.dtype), actions=keep(ds.actions),
-        rewards=rewards, hidden=keep(ds.hidden), final_states=final_states,
+        rewards=rewards, hidden=keep(ds.hidden), final_states=final_states, privileged=keep(ds.privileged),
         returns=returns,
         meta=dict(ds.meta, cut_fraction=float(fraction), cut_seed=int(seed), cut_episodes=int(len(chosen))))

@@ -125,6 +125,7 @@ def screen_by_return(task: str, oracle: Oracle, n: int, pool_size: int | None = 
             "seconds": time.perf_counter() - start}
     return replace(ds, states=ds.states[:, :horizon], rewards=ds.rewards[:, :horizon],
                    hidden=ds.hidden[:, :horizon], actions=ds.actions[:, :horizon], classes=classes[keep],
+                   privileged=None if ds.privileged is None else ds.privileged[:, :horizon],
                    meta=meta)
 
 

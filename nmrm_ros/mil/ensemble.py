@@ -70,6 +70,7 @@ class MILEnsemble(nn.Module):
         self._step_masks = None  # this forward's masks, one per activation in order
         self._computed = None  # this forward's members (None: all)
         self._pixels = torch.empty(0)  # the image encoder's patch buffer (`_encode`)
+        self._pixels_held = 0  # forwards whose backward (which reads the buffer) has not run yet
 
     # ----------------------------------------------------------------- members in and out
     @classmethod
@@ -164,19 +165,28 @@ class MILEnsemble(nn.Module):
     def _encode(self, x: torch.Tensor) -> torch.Tensor:
         """The image encoder (`image_encoder`) of (K, N, d) raw instances -> (K, N, P*c). The
         patches are copied once, as float32, into a buffer kept between forwards (a fresh 100 MB
-        tensor a step costs more in page faults than the copy), then `image_encoder.PatchLayer`."""
+        tensor a step costs more in page faults than the copy), then `image_encoder.PatchLayer`.
+        The backward reads the buffer, so a second forward before it (two losses, one backward)
+        copies into a fresh tensor instead; a graph dropped without its backward leaves every
+        later forward doing so (slower, never wrong)."""
         cfg = self.config
         (h, w, c), p = cfg.image_shape, cfg.patch
         K, N = x.shape[:2]
         size = K * N * h * w * c
-        if self._pixels.numel() < size:
-            self._pixels = torch.empty(size)
-        buf = self._pixels[:size]
+        grad = torch.is_grad_enabled()
+        if grad and self._pixels_held:  # a forward before the last one's backward (feedback both): its own copy
+            buf = torch.empty(size)
+        else:
+            if self._pixels.numel() < size:
+                self._pixels = torch.empty(size)
+            buf = self._pixels[:size]
         buf.view(K, N, h // p, w // p, p, p, c).copy_(
             x[..., :cfg.image_values].reshape(K, N, h // p, p, w // p, p, c).permute(0, 1, 2, 4, 3, 5, 6))
         flat = buf.view(K, N * (h // p) * (w // p), p * p * c)
         weight, bias = pixel_weights(self._p("encoder__weight"), self._p("encoder__bias"))
-        return PatchLayer.apply(flat, weight, bias).view(K, N, -1)
+        if grad:
+            self._pixels_held += 1  # until PatchLayer's backward has run
+        return PatchLayer.apply(flat, weight, bias, self if grad else None).view(K, N, -1)
 
     def _head_out(self, z: torch.Tensor) -> torch.Tensor:
         """(K, N, in) -> (K, N) in label units."""

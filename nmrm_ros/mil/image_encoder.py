@@ -46,10 +46,15 @@ def patches(x, image_shape: tuple, patch: int):
 def default_patch(height: int, width: int) -> int:
     """The patch side the models take for an image of height x width: the largest that divides
     both and leaves at least 8 patches across the shorter side (32 x 32: 4, 64 x 64: 8, 96 x 96:
-    12, 84 x 84: 7), so the encoder's output (P * c values) stays ~64 patches whatever the size."""
+    12, 84 x 84: 7), so the encoder's output (P * c values) stays ~64 patches whatever the size;
+    ValueError (one line) where none leaves at most 16 across (e.g. 97 x 97: resize it)."""
     common = math.gcd(int(height), int(width))
     limit = max(1, min(height, width) // 8)
-    return max(d for d in range(1, limit + 1) if common % d == 0)
+    patch = max(d for d in range(1, limit + 1) if common % d == 0)
+    if min(height, width) // patch > 16:
+        raise ValueError(f"an image of {height} x {width} pixels has no patch size that leaves 8-16 patches "
+                         f"across: resize it (a task spec's image=HxW, e.g. image=64x64)")
+    return patch
 
 
 def check_image_config(image_shape: tuple, patch: int, patch_channels: int, input_size: int) -> None:
@@ -99,7 +104,10 @@ class PatchLayer(torch.autograd.Function):
     cost another pass over them)."""
 
     @staticmethod
-    def forward(ctx, patches: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    def forward(ctx, patches: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, owner=None) -> torch.Tensor:
+        """owner: the `MILEnsemble` whose patch buffer `patches` is (its count of held buffers
+        drops when the backward has run), or None."""
+        ctx.owner = owner
         K, M, _ = patches.shape
         out = patches.new_empty(K, M, weight.shape[1])
         for m in range(K):
@@ -113,4 +121,6 @@ class PatchLayer(torch.autograd.Function):
         patches, out = ctx.saved_tensors
         grad = torch.ops.aten.threshold_backward(grad, out, 0.0)
         weight_grad = torch.stack([grad[m].t() @ patches[m] for m in range(len(grad))])
-        return None, weight_grad, grad.sum(1)
+        if ctx.owner is not None:
+            ctx.owner._pixels_held = max(0, ctx.owner._pixels_held - 1)
+        return None, weight_grad, grad.sum(1), None

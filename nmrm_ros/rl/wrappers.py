@@ -65,9 +65,6 @@ class EpisodeSeeds(gym.Wrapper):
 
 
 class NonMarkovianRewardWrapper(gym.Wrapper):
-    #: the stepper is stepped with the privileged state where there is one (an oracle's tracker)
-    stepper_sees_privileged = False
-
     """Replace the env's reward by a stepper's reward; optionally append its hidden state.
 
     env: a rewardless task env (`nmrm_ros.tasks.make_env`); stepper: gives (r_t, h_{t+1}) per state;
@@ -76,6 +73,9 @@ class NonMarkovianRewardWrapper(gym.Wrapper):
     "privileged" puts the privileged state (info["privileged"], `privileged_size` values) where
     s_t was in the observation (the stepper still steps with s_t).
     """
+
+    #: the stepper is stepped with the privileged state where there is one (an oracle's tracker)
+    stepper_sees_privileged = False
 
     def __init__(self, env: gym.Env, stepper: HiddenStateStepper, task: str | Oracle, augment: bool,
                  hidden_size: int, observe: str = "state", privileged_size: int = 0) -> None:
