@@ -101,6 +101,24 @@ def test_graph_oracle_mode_and_labeller(graph_capture):
     assert "labelled 3 episode(s), 0 broken" in out
 
 
+def test_a_pixel_task_on_the_graph_is_labelled_from_its_privileged_state(graph_capture):
+    """key_pixels: env_sim publishes the image as the state and the position as the privileged
+    state; the labeller and the reward model (oracle mode) step the oracle with the position."""
+    capture = graph_capture
+    run_graph(capture, "mode:=oracle", "task:=key_pixels")
+    oracle = make_oracle("key")
+    labels = {m.episode: m for m in capture.msgs["label"]}
+    assert sorted(labels) == list(range(EPISODES))
+    for e in range(EPISODES):
+        obs = sorted((m for m in capture.msgs["observation"] if m.episode == e), key=lambda m: m.step)
+        assert len(obs[0].state) == 3072 and len(obs[0].privileged) == 2
+        positions = np.array([m.privileged for m in obs[:100]], dtype=np.float32)
+        truth = oracle.label(positions[None])
+        assert labels[e].return_value == pytest.approx(truth.returns[0], abs=1e-9)
+        rs = sorted((m for m in capture.msgs["reward_step"] if m.episode == e), key=lambda m: m.step)
+        np.testing.assert_allclose([m.reward for m in rs[:100]], truth.rewards[0], atol=1e-6)
+
+
 def test_graph_model_mode_equals_batched_forward(graph_capture, key_checkpoint):
     capture = graph_capture
     run_graph(capture, "mode:=model", f"checkpoint:={key_checkpoint}", "task:=key")

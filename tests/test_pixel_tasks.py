@@ -282,3 +282,16 @@ def test_two_losses_of_a_pixel_ensemble_before_one_backward(key_data):
         grads.append(ens.params["encoder__weight"].grad.clone())
         assert ens._pixels_held == 0
     torch.testing.assert_close(grads[0], grads[1])
+
+
+def test_a_pixel_episode_recorded_and_read_back_keeps_its_privileged_state(key_data, tmp_path):
+    from nmrm_ros.bags.episodes import load_bag_dataset, write_dataset_bag
+
+    _, px = key_data
+    part = px.subset(np.arange(5))
+    write_dataset_bag(part, tmp_path / "bag")
+    back, report = load_bag_dataset([tmp_path / "bag"])
+    assert report.episodes_used == 5
+    np.testing.assert_array_equal(back.states, part.states.astype(np.float32))
+    np.testing.assert_array_equal(back.privileged, part.privileged)
+    np.testing.assert_array_equal(back.returns, part.returns)

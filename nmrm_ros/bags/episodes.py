@@ -90,9 +90,11 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
             for step in range(length + 1):
                 final = step == length
                 state = ds.final_states[i] if final else ds.states[i, step]
+                privileged = () if ds.privileged is None or final else ds.privileged[i, step]
                 bag.write_dict(TOPIC[T_OBS], T_OBS, {
                     "header": stamped_header(t, ds.task), "task": ds.task, "episode": e, "step": step,
-                    "state": [float(x) for x in state], "terminated": False, "truncated": final}, t)
+                    "state": [float(x) for x in state], "terminated": False, "truncated": final,
+                    "privileged": [float(x) for x in privileged]}, t)
                 if not final:
                     if ds.actions is not None:
                         a = np.asarray(ds.actions[i, step], dtype=np.float64).reshape(-1)
@@ -267,7 +269,8 @@ def _episode(messages, labels, oracle, state_size, labeller, report, compared=Fa
             if not (np.array_equal(prev[0], state) and prev[1] == (m.terminated, m.truncated)):
                 return None, "conflicting_duplicates"
             continue
-        by_step[int(m.step)] = (state, (bool(m.terminated), bool(m.truncated)))
+        privileged = np.asarray(getattr(m, "privileged", ()), dtype=np.float32)  # absent from older bags
+        by_step[int(m.step)] = (state, (bool(m.terminated), bool(m.truncated)), privileged if privileged.size else None)
     length = max(by_step)
     if sorted(by_step) != list(range(length + 1)):
         return None, "missing_steps"
@@ -286,27 +289,31 @@ def _episode(messages, labels, oracle, state_size, labeller, report, compared=Fa
     if int(label.length) != length:
         return None, "label_length_mismatch"
     report.labellers[label.labeller] += 1
-    states, rewards, hidden = _steps(by_step, length, oracle, report)
+    states, rewards, hidden, privileged = _steps(by_step, length, oracle, report)
     stamp = label.header.stamp
     return (states, by_step[length][0], float(label.return_value), rewards, hidden,
-            int(messages[0].episode), str(label.labeller), int(stamp.sec) * 10**9 + int(stamp.nanosec)), None
+            int(messages[0].episode), str(label.labeller), int(stamp.sec) * 10**9 + int(stamp.nanosec),
+            privileged), None
 
 
 def _unlabelled(by_step, length, oracle, messages, report) -> tuple:
     """The row of an episode that is compared but has no return label: return NaN, no labeller."""
-    states, rewards, hidden = _steps(by_step, length, oracle, report)
-    return (states, by_step[length][0], float("nan"), rewards, hidden, int(messages[0].episode), "", 0)
+    states, rewards, hidden, privileged = _steps(by_step, length, oracle, report)
+    return (states, by_step[length][0], float("nan"), rewards, hidden, int(messages[0].episode), "", 0, privileged)
 
 
 def _steps(by_step, length, oracle, report) -> tuple:
-    """(states (L, d), oracle rewards (L,) or None, oracle hidden (L, k) or None)."""
+    """(states (L, d), oracle rewards (L,) or None, oracle hidden (L, k) or None, privileged
+    states (L, p) or None)."""
     states = np.stack([by_step[t][0] for t in range(length)])
+    privileged = (np.stack([by_step[t][2] for t in range(length)])
+                  if all(by_step[t][2] is not None for t in range(length)) else None)
     have_oracle = all(t in oracle for t in range(length))
     report.with_oracle += int(have_oracle)
     rewards = np.array([oracle[t].reward for t in range(length)], np.float64) if have_oracle else None
     hidden = (np.array([list(oracle[t].hidden) for t in range(length)], np.float64)
               if have_oracle else None)
-    return states, rewards, hidden
+    return states, rewards, hidden, privileged
 
 
 def _stack(task, rows, state_size, report) -> TrajectoryDataset:
@@ -329,7 +336,13 @@ def _stack(task, rows, state_size, report) -> TrajectoryDataset:
             rewards[i, : len(s)] = r
             hidden[i, : len(s), : h.shape[1]] = h
     meta = {"source": "bags", "report": str(report), "episodes": episodes.tolist(),
-            "sources": [r[8] for r in rows],
-            "labels": [label_record(task, r[8], r[5], len(r[0]), r[2], r[6], r[7]) for r in rows],
+            "sources": [r[9] for r in rows],
+            "labels": [label_record(task, r[9], r[5], len(r[0]), r[2], r[6], r[7]) for r in rows],
             "oracle_ground_truth": report.with_oracle == n}
-    return TrajectoryDataset(task, states, lengths, returns, rewards, hidden, final_states=final, meta=meta)
+    privileged = None
+    if all(r[8] is not None for r in rows):  # every episode recorded its privileged states
+        privileged = np.zeros((n, horizon, rows[0][8].shape[1]), np.float32)
+        for i, r in enumerate(rows):
+            privileged[i, : len(r[8])] = r[8]
+    return TrajectoryDataset(task, states, lengths, returns, rewards, hidden, final_states=final, meta=meta,
+                             privileged=privileged)

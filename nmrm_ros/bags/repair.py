@@ -73,7 +73,8 @@ def repair_bag(path: str | Path) -> RepairReport:
             if channel is None or schema is None:
                 orphans += 1
                 continue
-            writer.write_cdr(channel.topic, schema.name, m.data, m.log_time, m.publish_time)
+            # the bag's own schema: its messages may be of an older definition than today's
+            writer.write_cdr(channel.topic, schema.name, m.data, m.log_time, m.publish_time, schema.data)
         counts = dict(writer.counts)
         writer.close()
         _verify(work, sum(counts.values()))

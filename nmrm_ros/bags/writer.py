@@ -58,19 +58,21 @@ class BagWriter:
         self.closed = False
 
     # -- registration ----------------------------------------------------------------------------
-    def add_topic(self, topic: str, type_name: str) -> int:
-        """Register `topic` with `type_name` (idempotent); returns the channel id."""
+    def add_topic(self, topic: str, type_name: str, definition: bytes | None = None) -> int:
+        """Register `topic` with `type_name` (idempotent); returns the channel id. definition: the
+        schema text the messages were written with (a repaired bag's own: an older definition of
+        the type), default today's."""
         if topic in self._channels:
             cid, known = self._channels[topic]
             if known != type_name:
                 raise ValueError(f"topic {topic} already has type {known}, not {type_name}")
             return cid
         short_name(type_name)  # validates the type
-        if type_name not in self._schemas:
-            self._schemas[type_name] = self._writer.register_schema(
-                type_name, "ros2msg", message_definition(type_name).encode())
+        text = message_definition(type_name).encode() if definition is None else bytes(definition)
+        if (type_name, text) not in self._schemas:
+            self._schemas[(type_name, text)] = self._writer.register_schema(type_name, "ros2msg", text)
         qos = yaml.safe_dump(OFFERED_QOS, default_flow_style=False)
-        cid = self._writer.register_channel(topic, "cdr", self._schemas[type_name],
+        cid = self._writer.register_channel(topic, "cdr", self._schemas[(type_name, text)],
                                             {"offered_qos_profiles": qos,
                                              "topic_type_hash": type_hash(type_name)})
         self._channels[topic] = (cid, type_name)
@@ -79,11 +81,12 @@ class BagWriter:
 
     # -- messages ----------------------------------------------------------------------------------
     def write_cdr(self, topic: str, type_name: str, data: bytes, log_time_ns: int,
-                  publish_time_ns: int | None = None) -> None:
-        """Append one CDR-serialised message."""
+                  publish_time_ns: int | None = None, definition: bytes | None = None) -> None:
+        """Append one CDR-serialised message (written with schema text `definition`, default
+        today's: `add_topic`)."""
         if self.closed:
             raise ValueError(f"bag {self.path} is closed")
-        cid = self.add_topic(topic, type_name)
+        cid = self.add_topic(topic, type_name, definition)
         self._writer.add_message(cid, log_time=int(log_time_ns), data=bytes(data),
                                  publish_time=int(publish_time_ns if publish_time_ns is not None else log_time_ns),
                                  sequence=self._sequence)

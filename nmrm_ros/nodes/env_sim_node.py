@@ -124,6 +124,7 @@ class EnvSimNode(NmrmNode):
         self.episode = self.first_episode - 1
         self.step_index = 0
         self.state = None
+        self.privileged = ()  # the current step's privileged state (info["privileged"]; empty: none)
         self.retries = 0
         self.sent_at = 0.0
         self.dropped = 0
@@ -239,14 +240,16 @@ class EnvSimNode(NmrmNode):
 
     def begin_episode(self) -> None:
         self.waiting_since = None
-        obs, _ = self.env.reset(seed=self.seed + self.episode)
+        obs, info = self.env.reset(seed=self.seed + self.episode)
         self.step_index = 0
         self.state = obs
+        self.privileged = info.get("privileged", ())
         self.publish_observation(False, False)
 
     def publish_observation(self, terminated: bool, truncated: bool) -> None:
         msg = EnvObservation(task=self.task, episode=self.episode, step=self.step_index,
-                             state=to_float_list(self.state), terminated=terminated, truncated=truncated)
+                             state=to_float_list(self.state), terminated=terminated, truncated=truncated,
+                             privileged=to_float_list(self.privileged))
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self.task
         self.sent_at = time.monotonic()
@@ -297,11 +300,12 @@ class EnvSimNode(NmrmNode):
         except ValueError as exc:
             self.drop(str(exc))
             return
-        obs, _, terminated, truncated, _ = self.env.step(action)
+        obs, _, terminated, truncated, info = self.env.step(action)
         self.steps_total += 1
         self.retries = 0
         self.step_index += 1
         self.state = obs
+        self.privileged = info.get("privileged", ())
         if terminated or truncated:
             self.publish_observation(bool(terminated), bool(truncated))
             self.abandoned_in_a_row = 0

@@ -41,7 +41,7 @@ from collections import deque
 from nmrm_msgs.msg import EnvObservation, OracleStep, TrajectoryPreference, TrajectoryReturn
 
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.messages import to_float_list
+from ..ros.messages import oracle_state, to_float_list
 from ..datasets.label_noise import OnlineLabelSwapper
 from ..datasets.preference_teacher import SimulatedTeacher
 from ..feedback import unknown_feedback
@@ -157,8 +157,8 @@ class LabellerOracleNode(NmrmNode):
                 self.compare(int(msg.episode), int(msg.step))
             return
         try:
-            reward, hidden = self.tracker.step(state)
-        except ValueError as exc:  # a user's oracle that misbehaved on this episode (OracleError)
+            reward, hidden = self.tracker.step(oracle_state(msg, state, self.info.privileged_size))
+        except ValueError as exc:  # a user's oracle that misbehaved, or no privileged state (one line)
             self.follower.break_episode(msg.episode)
             self.log_broken(msg, str(exc))
             return

@@ -40,7 +40,7 @@ import numpy as np
 from nmrm_msgs.msg import EnvObservation, RewardStep
 
 from ..ros.episodes import EpisodeFollower, Kind
-from ..ros.messages import to_float_list
+from ..ros.messages import oracle_state, to_float_list
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import (EXIT_WITH_UPSTREAM, ORACLE, NodeError, Param,
                              live_parameter, require_oracle, require_task)
@@ -160,8 +160,9 @@ class RewardModelNode(NmrmNode):
                 self.get_logger().info(f"episode {msg.episode}: now serving {self.source}")
             self.stepper.reset()
         try:
-            reward, hidden = self.stepper.step(state)
-        except ValueError as exc:  # a user's oracle that misbehaved on this episode (OracleError)
+            reward, hidden = self.stepper.step(oracle_state(msg, state, self.info.privileged_size)
+                                               if self.mode == "oracle" else state)
+        except ValueError as exc:  # a user's oracle that misbehaved, or no privileged state (one line)
             if self.follower.break_episode(msg.episode):
                 self.get_logger().error(f"episode {msg.episode} broken at step {msg.step}: {exc}; "
                                         f"waiting for the next step 0")

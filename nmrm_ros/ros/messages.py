@@ -15,6 +15,15 @@ def as_vector(values, size: int | None = None, what: str = "vector") -> np.ndarr
     return v
 
 
+def oracle_state(msg, state: np.ndarray, privileged_size: int) -> np.ndarray:
+    """What the oracle steps with on an EnvObservation: its privileged state where the task has
+    one (`privileged_size` values; ValueError, one line, if it is missing or malformed), else
+    `state`."""
+    if not privileged_size:
+        return state
+    return as_vector(getattr(msg, "privileged", []), privileged_size, "privileged state")
+
+
 def to_float_list(values) -> list:
     """numpy or sequence -> list of Python floats (what float32[] fields accept)."""
     return [float(x) for x in np.asarray(values, dtype=np.float64).reshape(-1)]
