@@ -85,24 +85,12 @@ def parse_task_spec(text: str) -> TaskSpec:
         raise TaskSpecError(f"task {text!r}: max_steps must be a positive integer, got {max_steps!r}")
     xy = kwargs.pop("xy", None)
     if xy is not None:
-        try:
-            i, j = (int(v) for v in str(xy).split("/"))
-            if i < 0 or j < 0 or i == j:
-                raise ValueError
-        except ValueError:
-            raise TaskSpecError(f"task {text!r}: xy must name two state dimensions as i/j, e.g. xy=0/1, "
-                                f"got {xy!r}") from None
-        xy = (i, j)
+        xy = _int_pair(text, xy, "/", lambda i, j: i >= 0 and j >= 0 and i != j,
+                       "xy must name two state dimensions as i/j, e.g. xy=0/1")
     image = kwargs.pop("image", None)
     if image is not None:
-        try:
-            h, w = (int(v) for v in str(image).lower().split("x"))
-            if h < 1 or w < 1:
-                raise ValueError
-        except ValueError:
-            raise TaskSpecError(f"task {text!r}: image must be a size HxW in pixels, e.g. image=64x64, "
-                                f"got {image!r}") from None
-        image = (h, w)
+        image = _int_pair(text, image, "x", lambda h, w: h >= 1 and w >= 1,
+                          "image must be a size HxW in pixels, e.g. image=64x64")
     privileged = kwargs.pop("privileged", None)
     if privileged is not None and (not isinstance(privileged, str) or not privileged):
         raise TaskSpecError(f"task {text!r}: privileged must name an entry of the env's info, got {privileged!r}")
@@ -116,6 +104,17 @@ def parse_task_spec(text: str) -> TaskSpec:
     if not module or not attribute:
         raise TaskSpecError(f"task {text!r}: use gym:<id> or <module>:<attribute>")
     return TaskSpec(text, "import", head, kwargs, max_steps, xy, **extra)
+
+
+def _int_pair(text: str, value, sep: str, valid, what: str) -> tuple:
+    """Two integers "a<sep>b" of a spec key, checked by valid(a, b); else TaskSpecError saying `what`."""
+    try:
+        a, b = (int(v) for v in str(value).lower().split(sep))
+        if not valid(a, b):
+            raise ValueError
+    except ValueError:
+        raise TaskSpecError(f"task {text!r}: {what}, got {value!r}") from None
+    return a, b
 
 
 def _construct(spec: TaskSpec, render: bool = False) -> gym.Env:
