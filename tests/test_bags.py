@@ -216,6 +216,22 @@ def test_replay_reproduces_messages(capture, tmp_path):
     assert len(capture.msgs["oracle_step"]) == 500 and len(capture.msgs["action"]) == 500
 
 
+def test_a_bag_of_an_older_observation_definition_replays(capture):
+    """bags/key_screened was recorded before EnvObservation gained `privileged`: replay re-encodes
+    its observations with today's definition (privileged empty), so today's subscribers read them."""
+    bag = Path(__file__).resolve().parents[1] / "bags" / "key_screened"
+    rp = start("replay", bag=str(bag), topics=["/nmrm/observation"], wait_for_subscribers=1, rate=0.0)
+    capture.spin_until(lambda: rp.poll() is not None, 90)
+    code, log = finish(rp, 60)
+    capture.spin_for(0.5)
+    assert code == 0, log
+    sent = [m for t, _, _, m in iter_decoded(bag, ["/nmrm/observation"])]
+    got = capture.msgs["observation"]
+    assert len(got) == len(sent) > 0
+    assert [(m.episode, m.step, list(m.state)) for m in got] == [(m.episode, m.step, list(m.state)) for m in sent]
+    assert all(len(m.privileged) == 0 for m in got)
+
+
 def test_replay_as_fast_as_possible_waits_for_a_slow_subscriber(capture, tmp_path):
     """rate 0 with 120 episodes (12,120 observations) to a subscriber that takes nothing for 3 s:
     the writer's keep-all history fills (the DDS resource limits) and replay waits for the

@@ -85,10 +85,45 @@ def _damage(file: Path, path, exc: Exception, read: int) -> str:
             f"from every intact chunk")
 
 
-def iter_raw(path: str | Path, topics: list | None = None) -> Iterator[RawMessage]:
-    """Messages of a bag as CDR bytes, in file order."""
+def _to_current(schema, channel):
+    """A converter of CDR messages written with `schema` to today's definition of the type (decode
+    with the bag's schema, encode with today's; fields it lacks are empty), or None where the two
+    are the same or the type is not one whose definition we carry."""
+    from mcap_ros2._dynamic import serialize_dynamic
+    from mcap_ros2.decoder import DecoderFactory
+
+    from .schemas import message_definition
+
+    try:
+        today = message_definition(schema.name)
+    except (OSError, ValueError, KeyError):  # not one of ours nor a standard type we write
+        return None
+    if today.encode() == bytes(schema.data):
+        return None
+    decode = DecoderFactory().decoder_for(channel.message_encoding, schema)
+    encode = serialize_dynamic(schema.name, today)[schema.name]
+    return lambda data: encode(decode(data))
+
+
+def iter_raw(path: str | Path, topics: list | None = None, current: bool = False) -> Iterator[RawMessage]:
+    """Every message of a bag as it was written (CDR bytes). current: a message written with an
+    older definition of its type than today's (a bag recorded before a field was added) is
+    re-encoded with today's, its new fields empty, so that today's subscribers can read it
+    (replay); a BagError if it cannot be decoded."""
+    converters: dict = {}
     for schema, channel, message in _iter(path, topics):
-        yield RawMessage(channel.topic, schema.name if schema else "", message.log_time, message.data)
+        data = message.data
+        if current and schema is not None:
+            key = (schema.name, bytes(schema.data))
+            if key not in converters:
+                converters[key] = _to_current(schema, channel)
+            if converters[key] is not None:
+                try:
+                    data = converters[key](data)
+                except Exception as exc:  # noqa: BLE001 - a message its own schema does not describe
+                    raise BagError(f"{path}: cannot decode a {schema.name} message on {channel.topic} with "
+                                   f"the bag's schema: {exc}") from None
+        yield RawMessage(channel.topic, schema.name if schema else "", message.log_time, data)
 
 
 def iter_decoded(path: str | Path, topics: list | None = None) -> Iterator[tuple]:

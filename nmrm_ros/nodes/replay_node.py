@@ -90,7 +90,7 @@ class ReplayNode(NmrmNode):
         self.timer = self.create_timer(0.001, self.on_timer)
 
     def start_pass(self) -> None:
-        self.messages = iter_raw(self.path, self.topics)
+        self.messages = iter_raw(self.path, self.topics, current=True)  # older definitions re-encoded
         self.next = None
         self.first_ns = None
         self.start_wall = time.monotonic()
