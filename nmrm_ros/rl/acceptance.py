@@ -168,13 +168,19 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
                   seed: int = 0, oracle: str = "") -> HackingCheck:
     """The reward-hacking check: train an agent for `episodes` episodes on the checkpoint's reward
     (agent seed `seed`), then compare learnt and oracle returns of its greedy episodes (and of
-    random ones) on `eval_episodes` new episodes; `oracle`: a user's oracle function, "" = the task's."""
+    random ones) on `eval_episodes` new episodes; `oracle`: a user's oracle function, "" = the task's.
+    On a task with a privileged state the agent observes it beside the served state."""
+    from ..tasks import task_info
     from .evaluation import EVAL_SEED
     from .training import train_agent
     from .wrappers import make_reward_env
 
-    run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle)
-    env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle)
+    # a task with a privileged state (a camera task): the agent sees it, not the pixels (an MLP
+    # agent of pixels learns nothing, and a check by an agent that learns nothing passes anything)
+    observe = "privileged" if task_info(task).privileged_size else "state"
+    run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle,
+                      observe=observe)
+    env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle, observe=observe)
     agent_l, agent_o = _episodes(env, eval_episodes, EVAL_SEED,
                                  lambda obs: run.model.predict(obs, deterministic=True)[0])
     rng = np.random.default_rng(seed)
