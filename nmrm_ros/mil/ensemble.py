@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from .dropout import MemberDropout, dropout_mask, relu_dropout
-from .image_encoder import PatchLayer, pixel_weights
+from .image_encoder import PatchLayer, patch_grid, pixel_weights
 from .models import MILOutput, MILRewardModel, ModelConfig, build_model, output_activation
 
 
@@ -180,8 +180,7 @@ class MILEnsemble(nn.Module):
             if self._pixels.numel() < size:
                 self._pixels = torch.empty(size)
             buf = self._pixels[:size]
-        buf.view(K, N, h // p, w // p, p, p, c).copy_(
-            x[..., :cfg.image_values].reshape(K, N, h // p, p, w // p, p, c).permute(0, 1, 2, 4, 3, 5, 6))
+        buf.view(K, N, h // p, w // p, p, p, c).copy_(patch_grid(x[..., :cfg.image_values], cfg.image_shape, p))
         flat = buf.view(K, N * (h // p) * (w // p), p * p * c)
         weight, bias = pixel_weights(self._p("encoder__weight"), self._p("encoder__bias"))
         if grad:

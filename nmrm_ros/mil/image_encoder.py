@@ -31,16 +31,22 @@ import torch
 IMAGE_SHIFT = 127.5
 
 
-def patches(x, image_shape: tuple, patch: int):
-    """An image's patches: x (..., H*W*C) -> (..., (H/p)(W/p), p*p*C), patches in row-major
-    order, each one's pixels row-major (p, p, C); torch tensors or NumPy arrays alike."""
+def patch_grid(x, image_shape: tuple, patch: int):
+    """An image's pixels x (..., H*W*C) viewed as (..., H/p, W/p, p, p, C) (no copy); torch
+    tensors or NumPy arrays alike."""
     h, w, c = image_shape
     lead = tuple(x.shape[:-1])
     n = len(lead)
     grid = x.reshape(*lead, h // patch, patch, w // patch, patch, c)
     order = (*range(n), n, n + 2, n + 1, n + 3, n + 4)
-    grid = grid.permute(order) if isinstance(x, torch.Tensor) else grid.transpose(order)
-    return grid.reshape(*lead, (h // patch) * (w // patch), patch * patch * c)
+    return grid.permute(order) if isinstance(x, torch.Tensor) else grid.transpose(order)
+
+
+def patches(x, image_shape: tuple, patch: int):
+    """An image's patches: x (..., H*W*C) -> (..., (H/p)(W/p), p*p*C), patches in row-major
+    order, each one's pixels row-major (p, p, C); torch tensors or NumPy arrays alike."""
+    h, w, c = image_shape
+    return patch_grid(x, image_shape, patch).reshape(*x.shape[:-1], (h // patch) * (w // patch), patch * patch * c)
 
 
 def default_patch(height: int, width: int) -> int:
