@@ -131,14 +131,14 @@ def test_the_recorder_subscribes_to_observations_once_it_knows_their_publisher(c
     assert not recorder_on(OBSERVATION)  # no observation publisher yet: not subscribed
     pub = capture.publisher(EnvObservation, OBSERVATION)
     assert capture.spin_until(lambda: pub.get_subscription_count() >= 2, 30)  # the recorder, the capture
-    for t in range(51):
-        pub.publish(EnvObservation(task="key", episode=0, step=t, state=[0.0, 1.0], truncated=t == 50))
+    for t in range(501):  # many, SIGINT right after they are acknowledged: none lost (drain_on_stop)
+        pub.publish(EnvObservation(task="key", episode=0, step=t, state=[0.0, 1.0], truncated=t == 500))
     assert pub.wait_for_all_acked(Duration(seconds=30))
     rec.send_signal(signal.SIGINT)
     code, log = finish(rec)
     assert code == 0, log
     steps = [m.step for t, _, _, m in iter_decoded(out) if t == "/" + OBSERVATION]
-    assert steps == list(range(51)), log
+    assert steps == list(range(501)), log
     # with nobody publishing, it subscribes after observation_wait all the same
     rec = start("recorder", output=str(tmp_path / "alone"), observation_wait=0.5)
     try:

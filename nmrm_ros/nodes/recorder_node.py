@@ -2,7 +2,8 @@
 
 The bag is a directory (`output`) with metadata.yaml and one .mcap (ros2 profile, zstd chunks,
 schemas embedded): `ros2 bag info/play`, Foxglove, the `mcap` CLI and `rosbags` read it. Each
-message is logged at its receive time. Ctrl-C / SIGTERM close the bag cleanly. Every
+message is logged at its receive time. Ctrl-C / SIGTERM close the bag cleanly, with every message
+received before them (for at most 2 s more). Every
 `flush_period` s the chunk in progress is ended and the file flushed to disk, so after a hard kill
 `nmrm bag repair OUTPUT` recovers everything received up to `flush_period` s before it. On close it logs how many messages it wrote and its own write
 rate (messages over the time from its first to its last write). A recording of nothing (e.g. the
@@ -37,6 +38,7 @@ PARAMETERS = {
 class RecorderNode(NmrmNode):
     executable = "recorder"
     PARAMETERS = PARAMETERS
+    drain_on_stop = 2.0  # messages received before Ctrl-C are in the bag
 
     def __init__(self) -> None:
         self.messages_received = 0

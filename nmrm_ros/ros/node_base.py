@@ -41,6 +41,9 @@ class NmrmNode(Node):
     PARAMETERS: dict = {}
     #: messages taken from the input topic(s) (counts a producer seen by `exit_with_upstream`)
     messages_received: int = 0
+    #: on Ctrl-C / SIGTERM, keep taking the messages DDS has already received (and acknowledged to
+    #: their publishers) for at most this many seconds before `close()`: 0 = drop them
+    drain_on_stop: float = 0.0
 
     def __init__(self, node_name: str | None = None, **kwargs) -> None:
         #: None while running; set it to end the process with that code (after the current callback)
