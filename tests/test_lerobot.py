@@ -143,15 +143,13 @@ def test_bag_to_lerobot_to_bag_keeps_everything(recording, exported, tmp_path):
     assert max(errors) < 4.0, max(errors)  # H.264 (crf 23) then JPEG (quality 90): mean error per pixel, of 255
 
 
-def test_anyones_dataset_needs_its_task_and_ends_at_its_last_frame(exported, tmp_path):
+def test_anyones_dataset_ends_at_its_last_frame_with_the_task_given(exported, tmp_path):
     out, _ = exported
     theirs = tmp_path / "theirs"
     import shutil
 
     shutil.copytree(out, theirs)
     shutil.rmtree(theirs / "meta/nmrm")
-    with pytest.raises(LeRobotError, match="not exported by nmrm_ros: give its task"):
-        import_lerobot(theirs, tmp_path / "b0")
     report = import_lerobot(theirs, tmp_path / "b1", task="key", episodes="0:3,5", label_key="next.reward",
                             camera="")
     assert (report.episodes, report.labels, report.frames) == (4, 4, 0)
@@ -160,6 +158,58 @@ def test_anyones_dataset_needs_its_task_and_ends_at_its_last_frame(exported, tmp
     first = ds.lengths[0] + 1  # the last frame is the final observation
     np.testing.assert_allclose(ds.states[0, :first - 1], np.asarray(data.column("observation.state").to_pylist()[:first - 1]))
     np.testing.assert_allclose(ds.returns[0], data.column("next.reward").to_numpy()[:first].sum(), rtol=1e-6)
+
+
+def test_anyones_dataset_is_a_task_of_its_own_labelled_modelled_and_exported_with_its_reward(recording, tmp_path):
+    """Without --task, anyone's dataset is the task `lerobot:<dir>` (TaskInfo from its metadata, no
+    environment): imported, labelled by a labeller's bag, trained on, and exported with
+    next.reward = the learnt r'_t. What needs an environment says so in one line."""
+    import shutil
+
+    from nmrm_ros.mil.checkpoint import load_checkpoint
+    from nmrm_ros.tasks import make_env, task_info
+
+    ds = generate_screened("key", 12, seed=5)
+    write_dataset_bag(ds, tmp_path / "rec")
+    theirs = tmp_path / "theirs"
+    export_lerobot([tmp_path / "rec"], theirs, fps=10)
+    shutil.rmtree(theirs / "meta/nmrm")
+    report = import_lerobot(theirs, tmp_path / "bag", label_key="next.done")
+    task = f"lerobot:{theirs}"
+    assert report.task == task and report.episodes == 12 and report.labels == 12
+    info = task_info(task)
+    assert (info.state_size, info.discrete, info.action_size) == (2, False, 1)
+    assert info.episode_length == int(ds.lengths.max()) - 1 and info.instruction  # our export: L frames, s_L aside
+    with pytest.raises(ValueError, match="recorded LeRobot dataset: it has no environment"):
+        make_env(task)
+    for bad, match in ((f"{task},state=nope", "no state feature 'nope'"), (f"{task},max_steps=5", "not max_steps"),
+                       ("lerobot:" + str(tmp_path / "nowhere"), "not a directory"), (f"{task},xy=0/2", "xy=0/2")):
+        with pytest.raises(ValueError, match=match):
+            task_info(bad)
+    data, _ = load_bag_dataset([tmp_path / "bag"])
+    assert data.returns.tolist() == [1.0] * 12  # next.done: 1 on each episode's last frame
+    labels = tmp_path / "labels"
+    with BagWriter(labels) as bag:
+        for i in range(12):
+            bag.write_dict("/nmrm/trajectory_return", "nmrm_msgs/msg/TrajectoryReturn", {
+                "header": {"stamp": {"sec": 2000 + i, "nanosec": 0}, "frame_id": ""}, "task": task, "episode": i,
+                "length": int(data.lengths[i]), "return_value": float(ds.returns[i]), "labeller": "dana"},
+                10**9 * (2000 + i))
+    res = subprocess.run([executable("nmrm"), "train", "--bag", str(tmp_path / "bag"), "--bag", str(labels),
+                          "--out", str(tmp_path / "model"), "--epochs", "1", "--labeller", "dana"],
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    checkpoint = tmp_path / "model.pt"
+    assert load_checkpoint(checkpoint)[1].task == task
+    back = tmp_path / "back"
+    export_lerobot([tmp_path / "bag", labels], back, checkpoint=checkpoint, fps=10)
+    table = pq.read_table(back / "data/chunk-000/file-000.parquet")
+    model = OnlineRewardModel.from_checkpoint(checkpoint)
+    first = table.filter(pa.compute.equal(table.column("episode_index"), 0))
+    expected = [model.step(np.asarray(s, np.float32))[0] for s in first.column("observation.state").to_pylist()]
+    np.testing.assert_allclose(first.column("next.reward").to_numpy(), expected, atol=1e-5)
+    info = json.loads((back / "meta/nmrm/info.json").read_text())
+    assert info["task"] == task
 
 
 def test_a_dataset_written_by_lerobot_itself_comes_in(tmp_path):
@@ -258,9 +308,10 @@ def test_people_label_an_imported_lerobot_dataset_on_the_page(ros_domain, tmp_pa
     from nmrm_ros.ros.ament_paths import require_share_dir
     from nmrm_ros.testing.graph import OutputLines
 
-    import_lerobot(FIXTURES / "lerobot_v30_small", tmp_path / "bag", task="key")
+    task = import_lerobot(FIXTURES / "lerobot_v30_small", tmp_path / "bag").task  # the dataset is the task
+    assert task == f"lerobot:{FIXTURES / 'lerobot_v30_small'}"
     launch_file = require_share_dir("nmrm_ros") / "launch_scripts" / "label_bag.launch.yaml"
-    proc = subprocess.Popen([executable("nmrm"), "launch", str(launch_file), f"bag:={tmp_path / 'bag'}", "task:=key",
+    proc = subprocess.Popen([executable("nmrm"), "launch", str(launch_file), f"bag:={tmp_path / 'bag'}", f"task:={task}",
                              "port:=0", f"labels_dir:={tmp_path / 'labels'}", "person:=carol"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     out = OutputLines(proc)
@@ -270,6 +321,8 @@ def test_people_label_an_imported_lerobot_dataset_on_the_page(ros_domain, tmp_pa
         out.wait_for("episode 2 (14 steps) waits for a label")
         queue = json.loads(urllib.request.urlopen(f"{base}/api/queue?token={token}", timeout=10).read())
         assert [e["episode"] for e in queue["episodes"]] == [0, 1, 2]
+        info = json.loads(urllib.request.urlopen(f"{base}/api/info?token={token}", timeout=10).read())
+        assert info["instruction"] == "push the block to the line"  # the dataset's task text
         frame = urllib.request.urlopen(f"{base}/api/episode/1/frame/3?token={token}", timeout=10)
         assert frame.headers["Content-Type"] == "image/jpeg" and len(frame.read()) > 100
         request = urllib.request.Request(f"{base}/api/label", data=json.dumps({"episode": 1, "return": 4.0}).encode(),

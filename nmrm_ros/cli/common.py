@@ -37,7 +37,8 @@ def _option_error(check, value) -> None:
         raise typer.BadParameter(str(exc)) from None
 
 
-TASK_HELP = "timer | moving | key | charger | lunar_lander, or your own: gym:<id> | <module>:<attribute>"
+TASK_HELP = ("timer | moving | key | charger | lunar_lander, or your own: gym:<id> | <module>:<attribute> | "
+             "lerobot:<dataset dir>")
 ORACLE_HELP = ("your own oracle, <module>:<function> or <file.py>:<function> (needed for your own "
                "task; default: the task's own)")
 

@@ -37,8 +37,10 @@ def export_lerobot(
 def import_lerobot(
     dataset: Path = typer.Argument(..., help="a LeRobot v3.0 dataset directory (the one holding meta/info.json)"),
     out: Path = typer.Option(..., callback=writable_dir, help="the new bag directory (must not exist)"),
-    task: str | None = typer.Option(None, help="the task of a dataset not exported by nmrm_ros: a task spec "
-                                               "whose state size is the state feature's"),
+    task: str | None = typer.Option(None, help="a task spec whose state size is the state feature's, for "
+                                               "episodes of an environment you have (default: the task the "
+                                               "dataset was exported with, else the dataset itself, "
+                                               "lerobot:<DATASET>: no environment)"),
     state: str = typer.Option("observation.state", help="the state feature"),
     action: str = typer.Option("action", help="the action feature ('' for none)"),
     camera: str | None = typer.Option(None, help="the video or image feature played on the labelling page "

@@ -207,6 +207,29 @@ def read_tasks(root: Path) -> list:
     return out
 
 
+def vector_width(spec: dict, key: str) -> int:
+    """The width of a vector feature of info.json (`spec`); LeRobotError for images, strings, arrays."""
+    shape = spec.get("shape") or [1]
+    if spec.get("dtype") in ("video", "image", "string") or len(shape) != 1:
+        raise LeRobotError(f"feature {key!r} is {spec.get('dtype')} of shape {shape}, not a vector")
+    return int(shape[0])
+
+
+def read_episode_rows(root: Path) -> list:
+    """meta/episodes' rows (episode_index, length, files...) sorted by episode; LeRobotError if absent."""
+    files = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    if not files:
+        raise LeRobotError(f"{root}: no meta/episodes/*/*.parquet")
+    rows = []
+    for f in files:
+        rows.extend(read_parquet(f).to_pylist())
+    missing = [c for c in ("episode_index", "length") if rows and c not in rows[0]]
+    if missing:
+        raise LeRobotError(f"{files[0]}: no {missing[0]!r} column")
+    rows.sort(key=lambda r: int(r["episode_index"]))
+    return rows
+
+
 def read_parquet(path: Path):
     """A parquet file as a pyarrow Table; LeRobotError (one line) for a missing or corrupt one."""
     import pyarrow as pa

@@ -9,8 +9,9 @@ feature), its frames as `sensor_msgs/CompressedImage` on `nmrm/frame` (JPEG), as
 them. A dataset we exported (`meta/nmrm/`) comes back as it was: its task, sources, episode ids,
 final observations s_L, return labels with their labellers and times, and comparisons. Anyone
 else's has no final observation after the last action: its last frame's state is taken as s_L
-(L = n - 1 steps; the last frame's action is dropped) and its task must be given (a task spec
-whose state size is the state column's). `label_key` (e.g. "next.reward") labels each episode
+(L = n - 1 steps; the last frame's action is dropped); its task is the dataset itself,
+`lerobot:<root>` (`dataset_task`: no environment), unless a task spec whose state size is the
+state column's is given (then episodes can be run and agents trained on its environment). `label_key` (e.g. "next.reward") labels each episode
 with the sum of that column over all its frames (the episode's return as LeRobot keeps it: the
 last frame's reward included), from labeller "lerobot/<key>".
 
@@ -28,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .format import NMRM_DIR, LeRobotError, column_values, read_info, read_parquet, temporary_sibling
+from .format import (NMRM_DIR, LeRobotError, column_values, read_episode_rows, read_info, read_parquet,
+                     temporary_sibling, vector_width)
 from .video import read_frames
 
 
@@ -81,27 +83,6 @@ def _feature(info: dict, key: str, what: str) -> dict:
                                                                            "episode_index", "task_index")))
         raise LeRobotError(f"the dataset has no {what} feature {key!r} (its features: {names})")
     return spec
-
-
-def _width(spec: dict, key: str) -> int:
-    shape = spec.get("shape") or [1]
-    if spec.get("dtype") in ("video", "image", "string") or len(shape) != 1:
-        raise LeRobotError(f"feature {key!r} is {spec.get('dtype')} of shape {shape}, not a vector")
-    return int(shape[0])
-
-
-def _episode_rows(root: Path) -> list:
-    files = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
-    if not files:
-        raise LeRobotError(f"{root}: no meta/episodes/*/*.parquet")
-    rows = []
-    for f in files:
-        rows.extend(read_parquet(f).to_pylist())
-    missing = [c for c in ("episode_index", "length") if rows and c not in rows[0]]
-    if missing:
-        raise LeRobotError(f"{files[0]}: no {missing[0]!r} column")
-    rows.sort(key=lambda r: int(r["episode_index"]))
-    return rows
 
 
 def _camera_frames(root: Path, info: dict, camera: str, rows: list, wanted: set) -> dict:
@@ -186,28 +167,32 @@ def import_lerobot(root: str | Path, out: str | Path, task: str | None = None,
             raise LeRobotError(f"{ours_path}: not JSON ({exc})") from None
         if not isinstance(ours, dict):
             raise LeRobotError(f"{ours_path}: not a table of nmrm_ros export facts")
-    width = _width(_feature(info, state_key, "state"), state_key)
+    width = vector_width(_feature(info, state_key, "state"), state_key)
     if action_key and action_key not in info["features"]:
         if action_key != "action":  # asked for by name
             _feature(info, action_key, "action")
         action_key = None
-    action_width = _width(info["features"][action_key], action_key) if action_key else 0
+    action_width = vector_width(info["features"][action_key], action_key) if action_key else 0
     if label_key:
-        _width(_feature(info, label_key, "label"), label_key)
+        vector_width(_feature(info, label_key, "label"), label_key)
     cameras = [k for k, v in info["features"].items() if v.get("dtype") in ("video", "image")]
     if camera is None:
         camera = cameras[0] if cameras else ""
     elif camera and camera not in cameras:
         raise LeRobotError(f"the dataset has no camera {camera!r} (its cameras: {', '.join(cameras) or 'none'})")
     task = task or (ours or {}).get("task")
-    if not task:
-        raise LeRobotError(f"{root} was not exported by nmrm_ros: give its task (--task, a task spec whose "
-                           f"state has the {width} values of {state_key!r})")
-    size = task_info(task).state_size
+    if not task:  # anyone's dataset: the dataset is the task (`dataset_task`)
+        from .dataset_task import dataset_task_spec
+
+        task = dataset_task_spec(root, state_key, action_key)
+    try:
+        size = task_info(task).state_size
+    except ValueError as exc:  # an unknown task, a spec that cannot be used
+        raise LeRobotError(str(exc)) from None
     if size != width:
         raise LeRobotError(f"task {task!r} has states of {size} values; {state_key!r} has {width}")
 
-    rows = _episode_rows(root)
+    rows = read_episode_rows(root)
     if len(rows) != int(info["total_episodes"]) or [int(r["episode_index"]) for r in rows] != list(range(len(rows))):
         raise LeRobotError(f"meta/episodes lists {len(rows)} episodes, not episodes 0..{int(info['total_episodes']) - 1} "
                            f"as meta/info.json says")

@@ -3,7 +3,8 @@
 Tasks: the 2D navigation tasks `timer`, `moving`, `key`, `charger` (one simulator, see
 `navigation`), their pixel versions `<task>_pixels` (the state is a rendered top-down image, the
 position privileged: `pixel_navigation`) and `lunar_lander`; and any Gymnasium environment named by a task spec,
-`gym:<id>[,k=v...]` or `<module>:<attribute>[,k=v...]` (`gym_task`). Rewards come from
+`gym:<id>[,k=v...]` or `<module>:<attribute>[,k=v...]` (`gym_task`), or a recorded LeRobot
+dataset with no environment, `lerobot:<dir>` (`nmrm_ros.lerobot.dataset_task`). Rewards come from
 `nmrm_ros.oracles` or a learnt model.
 """
 
@@ -13,7 +14,7 @@ from functools import lru_cache
 
 import gymnasium as gym
 
-from .gym_task import TaskSpecError, is_task_spec, make_gym_task_env
+from .gym_task import TaskSpecError, is_task_spec, make_gym_task_env, parse_task_spec
 from .info import TaskInfo
 
 NAVIGATION_TASKS = ("timer", "moving", "key", "charger")
@@ -29,7 +30,7 @@ def check_task(task: str) -> str:
         return task
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}, or your own "
-                         f"environment as gym:<id> or <module>:<attribute>")
+                         f"environment as gym:<id> or <module>:<attribute>, or a LeRobot dataset as lerobot:<dir>")
     return task
 
 
@@ -56,8 +57,6 @@ def _module_words(task: str) -> tuple:
     judges) and the `legend` of its `ARENA` ({zone kind: meaning}); ("", ()) where it gives none."""
     import importlib
 
-    from .gym_task import parse_task_spec
-
     spec = parse_task_spec(task)
     if spec.kind != "import":
         return "", ()
@@ -74,6 +73,11 @@ def task_info(task: str) -> TaskInfo:
     """What the package knows of `task` (`TaskInfo`: state layout, actions, model family, label
     range, arena, screening rule, frames); ValueError (one line) for an unknown task."""
     if is_task_spec(task):
+        spec = parse_task_spec(task)
+        if spec.kind == "lerobot":  # a recorded dataset, no environment
+            from ..lerobot.dataset_task import dataset_task_info
+
+            return dataset_task_info(spec)
         return _spec_info(task)
     check_task(task)
     if task in NAVIGATION_TASKS:

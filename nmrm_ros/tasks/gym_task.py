@@ -7,6 +7,9 @@ for a new task:
                                          gym:LunarLanderContinuous-v3,enable_wind=true
     <module>:<attribute>[,key=value...]  an importable env class or factory of the user's own
                                          package, e.g. my_robot.sim:make_env,speed=0.5
+    lerobot:<dir>[,state=K,action=K]     a LeRobot dataset on disk, as a task without an
+                                         environment (`nmrm_ros.lerobot.dataset_task`): its
+                                         episodes can be labelled, modelled and exported, not run
 
 `key=value` pairs are keyword arguments of `gym.make` or of the class / factory; values are read
 as YAML scalars (`3` int, `0.5` float, `true` bool, else a string). Four keys are ours:
@@ -42,6 +45,7 @@ import numpy as np
 import yaml
 
 GYM_PREFIX = "gym:"
+LEROBOT_PREFIX = "lerobot:"
 
 
 class TaskSpecError(ValueError):
@@ -55,11 +59,12 @@ def is_task_spec(task: str) -> bool:
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """A parsed task spec: `kind` "gym" (registered id) or "import" (module:attribute)."""
+    """A parsed task spec: `kind` "gym" (registered id), "import" (module:attribute) or
+    "lerobot" (a dataset directory: no environment)."""
 
     text: str
     kind: str
-    target: str  # the Gymnasium id, or "module:attribute"
+    target: str  # the Gymnasium id, "module:attribute", or the LeRobot dataset's directory
     kwargs: dict = field(default_factory=dict)
     max_steps: int | None = None
     xy: tuple | None = None  # state dimensions the labelling page draws as a 2D path
@@ -68,7 +73,8 @@ class TaskSpec:
 
 
 def parse_task_spec(text: str) -> TaskSpec:
-    """Parse `gym:<id>[,k=v...]` or `<module>:<attribute>[,k=v...]`; TaskSpecError if malformed."""
+    """Parse `gym:<id>[,k=v...]`, `<module>:<attribute>[,k=v...]` or `lerobot:<dir>[,k=v...]`;
+    TaskSpecError if malformed."""
     head, *pairs = [p.strip() for p in text.strip().split(",")]
     kwargs: dict = {}
     for pair in pairs:
@@ -95,6 +101,17 @@ def parse_task_spec(text: str) -> TaskSpec:
     if privileged is not None and (not isinstance(privileged, str) or not privileged):
         raise TaskSpecError(f"task {text!r}: privileged must name an entry of the env's info, got {privileged!r}")
     extra = {"image": image, "privileged": privileged}
+    if head.startswith(LEROBOT_PREFIX):
+        target = head[len(LEROBOT_PREFIX):]
+        unknown = sorted(set(kwargs) - {"state", "action"}) + [k for k, v in (("max_steps", max_steps),
+                                                                              ("image", image),
+                                                                              ("privileged", privileged)) if v]
+        if not target:
+            raise TaskSpecError(f"task {text!r}: give a LeRobot dataset's directory after lerobot:")
+        if unknown:
+            raise TaskSpecError(f"task {text!r}: a LeRobot dataset task takes state=KEY, action=KEY and xy=i/j, "
+                                f"not {unknown[0]}")
+        return TaskSpec(text, "lerobot", target, kwargs, None, xy)
     if head.startswith(GYM_PREFIX):
         target = head[len(GYM_PREFIX):]
         if not target:
@@ -314,4 +331,8 @@ def make_gym_task_env(task: str, render: bool = False) -> GymTaskEnv:
     """The env of task spec `task` (see the module docstring); TaskSpecError if it is unusable.
     `render`: made with render_mode="rgb_array" (`env.render()` returns an RGB frame)."""
     spec = parse_task_spec(task)
+    if spec.kind == "lerobot":
+        raise TaskSpecError(f"task {task!r} is a recorded LeRobot dataset: it has no environment to run "
+                            f"(its episodes can be labelled, modelled and exported; to run episodes or an agent, "
+                            f"give the task spec of an environment with the same state)")
     return GymTaskEnv(_construct(spec, render), spec)
