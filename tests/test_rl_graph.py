@@ -117,16 +117,28 @@ def test_loop_launch_file_retrains_swaps_and_relabels_the_agents_replay_buffer(r
     from nmrm_ros.rl.replay_relabel import relabel_replay_buffer
     from stable_baselines3.common.save_util import load_from_pkl
 
+    import yaml
+
+    # The catch-up after each swap (config/rl.yaml: 10000 gradient steps, ~20 s each of the 5 swaps
+    # here) is the loop's own test's (test_reward_model_loop.py); this one checks the relabelling:
+    # 500 steps, through the agent's rl_config parameter.
+    rl = yaml.safe_load((REPO / "config" / "rl.yaml").read_text())
+    rl["dqn"]["catch_up_steps"] = 500
+    (tmp_path / "rl.yaml").write_text(yaml.safe_dump(rl))
+    params = yaml.safe_load((REPO / "config" / "graph.yaml").read_text())
+    params["/**/agent"]["ros__parameters"]["rl_config"] = str(tmp_path / "rl.yaml")
+    (tmp_path / "graph.yaml").write_text(yaml.safe_dump(params))
     out = tmp_path / "loop"
     code, text = finish(subprocess.Popen(
         [executable("nmrm"), "launch", str(REPO / "launch_scripts" / "loop.launch.yaml"), "task:=key",
          f"checkpoint:={key_checkpoint}", "episodes:=60", "labels_per_round:=10", "members:=1", "max_epochs:=2",
-         "save_replay_buffer:=true", f"out:={out}"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
-        timeout=300)
+         "save_replay_buffer:=true", f"out:={out}", f"params:={tmp_path / 'graph.yaml'}"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True), timeout=300)
     assert code == 0, text
     relabelled = [line.split("relabelled with ")[1].split(":")[0] for line in text.splitlines()
                   if "replay buffer relabelled with" in line]
     assert relabelled, text
+    assert "up to 500 catch-up gradient steps follow" in text, text  # the params file reached the agent
     assert len((out / "agent" / "curve.csv").read_text().splitlines()) == 61
     served = {}  # episode id -> the model that served it
     for _, _, _, msg in iter_decoded(out / "bag", ["/nmrm/reward_step"]):
