@@ -8,7 +8,8 @@
 served state computed per step, as served) and imported back. With a camera: random-policy episodes
 of gym:CartPole-v1 (seed 0) with every step's frame rendered and JPEG-encoded at 240 pixels wide,
 as env_sim records them (render:=true), exported as H.264 video and imported back (frames decoded
-and re-encoded as JPEG). Wall time of the library calls `export_lerobot` / `import_lerobot`, one
+and re-encoded as JPEG). A pixel task: the same Key episodes rendered as 32x32x3 image states
+(`key_pixels`, data seed 20; `--pixel-episodes`), whose pixels go out as the state column. Wall time of the library calls `export_lerobot` / `import_lerobot`, one
 run each; sizes are the directories' bytes. Bags are kept in runs/lerobot_bench/ between runs. Output: bench/results/lerobot/throughput.txt.
 
 **loader**: LeRobot's own loader on our export (episodes, frames, the reward column and camera
@@ -55,6 +56,18 @@ def key_bag(episodes: int) -> Path:
     path = WORK / f"key_{episodes}"
     if not path.exists():
         write_dataset_bag(generate_screened("key", episodes, seed=20), path)
+    return path
+
+
+def pixel_bag(episodes: int) -> Path:
+    """A pixel Key bag: the screened Key episodes of data seed 20 rendered (32x32x3 states)."""
+    from nmrm_ros.bags.episodes import write_dataset_bag
+    from nmrm_ros.tasks.pixel_navigation import pixel_dataset
+    from nmrm_ros.datasets import generate_screened
+
+    path = WORK / f"key_pixels_{episodes}"
+    if not path.exists():
+        write_dataset_bag(pixel_dataset(generate_screened("key", episodes, seed=20), "key_pixels"), path)
     return path
 
 
@@ -208,13 +221,14 @@ def loader(args) -> None:
 def throughput(args) -> None:
     WORK.mkdir(parents=True, exist_ok=True)
     lines = [measure("key (with next.reward)", [key_bag(args.episodes)], checkpoint(args.checkpoint)),
-             measure("cartpole (camera)", [camera_bag(args.camera_episodes)], None)]
+             measure("cartpole (camera)", [camera_bag(args.camera_episodes)], None),
+             measure("key_pixels (image state)", [pixel_bag(args.pixel_episodes)], None)]
     text = "\n".join(lines)
     print(text)
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "throughput.txt").write_text(
         f"# .venv/bin/python bench/lerobot_datasets.py throughput --episodes {args.episodes} "
-        f"--camera-episodes {args.camera_episodes}\n{text}\n")
+        f"--camera-episodes {args.camera_episodes} --pixel-episodes {args.pixel_episodes}\n{text}\n")
 
 
 def main() -> None:
@@ -223,6 +237,7 @@ def main() -> None:
     tp = sub.add_parser("throughput", help="export and import steps/s and sizes")
     tp.add_argument("--episodes", type=int, default=2000, help="Key episodes (no camera)")
     tp.add_argument("--camera-episodes", type=int, default=200, help="CartPole episodes with frames")
+    tp.add_argument("--pixel-episodes", type=int, default=200, help="pixel Key episodes (the state is an image)")
     tp.add_argument("--checkpoint", default=None, help="a Key reward model for next.reward")
     lp = sub.add_parser("loader", help="LeRobot's LeRobotDataset on our export, in its own venv")
     lp.add_argument("--rebuild-venv", action="store_true")
