@@ -20,7 +20,7 @@ served member is the best on validation) on split r of a dataset of data seed r 
 scored on its test split and on a held-out dataset of data seed 999. Models trained before
 2026-12-06 served member 0 (their checkpoints record it; they are not retrained).
 agents: double DQN (config/rl.yaml, 400 episodes; --rl-set changes settings) on the repeat-0 CSC model's reward (served
-state: the default), on the oracle's reward with its hidden state, and without it; agent seeds as
+state: the default; `--model-repeats 0 1 2`: on each of those repeats' models, i.e. data seeds, as issue 50's table asks), on the oracle's reward with its hidden state, and without it; agent seeds as
 given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm rl evaluate`).
 
 Resumes: every run is a JSON file in bench/results/your_own_task/ and is skipped when present,
@@ -126,26 +126,31 @@ def run_model(job: tuple) -> dict:
     return res
 
 
+def agent_name(reward: str, seed: int, repeat: int = 0) -> str:
+    """agent_<reward>_s<seed>, or agent_model_r<repeat>_s<seed> on another repeat's model than 0."""
+    return f"agent_{reward}_r{repeat}_s{seed}" if reward == "model" and repeat else f"agent_{reward}_s{seed}"
+
+
 def run_agent(job: tuple) -> dict:
-    setting, reward, seed = job
+    setting, reward, seed, repeat = job
     import torch
 
     torch.set_num_threads(1)
     from nmrm_ros.rl import evaluate_agent, train_agent
 
-    checkpoint = checkpoint_path(setting, "csc_lstm", 0) if reward == "model" else None
-    out = setting.data / "agents" / (setting.rl_tag or ".") / f"{reward}_s{seed}"
+    checkpoint = checkpoint_path(setting, "csc_lstm", repeat) if reward == "model" else None
+    out = setting.data / "agents" / (setting.rl_tag or ".") / agent_name(reward, seed, repeat)[len("agent_"):]
     t0 = time.perf_counter()
     run = train_agent(setting.task, reward, checkpoint=checkpoint, seed=seed, out=out, progress=False,
                       oracle=setting.oracle, **dict(setting.rl_set))
     seconds = time.perf_counter() - t0
     result = evaluate_agent(out / "policy.zip", setting.task, checkpoint=checkpoint, oracle=setting.oracle)
-    res = {"reward": reward, "seed": seed, "checkpoint_sha256": recorded_weights_sha256(checkpoint) if checkpoint else None,
+    res = {"reward": reward, "seed": seed, "model_repeat": repeat if reward == "model" else None, "checkpoint_sha256": recorded_weights_sha256(checkpoint) if checkpoint else None,
            "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
            "seconds": seconds, "late_dip": late_dip(out / "curve.csv"), "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"]}
     setting.agent_results.mkdir(parents=True, exist_ok=True)
-    (setting.agent_results / f"agent_{reward}_s{seed}.json").write_text(json.dumps(res, indent=1))
+    (setting.agent_results / f"{agent_name(reward, seed, repeat)}.json").write_text(json.dumps(res, indent=1))
     return res
 
 
@@ -162,10 +167,10 @@ def model_done(setting: Setting, arch: str, r: int) -> bool:
     return not stale
 
 
-def agent_done(setting: Setting, reward: str, seed: int) -> bool:
+def agent_done(setting: Setting, reward: str, seed: int, repeat: int = 0) -> bool:
     """The agent of (reward, seed) is finished with today's RL settings, and (reward model) learnt on
-    today's repeat-0 model."""
-    path = setting.agent_results / f"agent_{reward}_s{seed}.json"
+    today's model of that repeat."""
+    path = setting.agent_results / f"{agent_name(reward, seed, repeat)}.json"
     if not path.is_file():
         return False
     res = json.loads(path.read_text())
@@ -175,7 +180,7 @@ def agent_done(setting: Setting, reward: str, seed: int) -> bool:
         return False
     if reward != "model":
         return True
-    return res.get("checkpoint_sha256") == recorded_weights_sha256(checkpoint_path(setting, "csc_lstm", 0))
+    return res.get("checkpoint_sha256") == recorded_weights_sha256(checkpoint_path(setting, "csc_lstm", repeat))
 
 
 def late_dip(curve: Path) -> float:
@@ -215,16 +220,29 @@ def report(setting: Setting) -> str:
     for where in [setting.results] + sorted(setting.results.glob("agents_*")):
         if where != setting.results:
             lines.append(f"# agents with config/rl.yaml's settings changed: {where.name[len('agents_'):]}")
-        for reward in REWARDS:
-            runs = [json.loads(p.read_text()) for p in sorted(where.glob(f"agent_{reward}_s*.json"))]
+        groups = [("model r0", "agent_model_s*.json")] + [
+            (f"model r{r}", f"agent_model_r{r}_s*.json") for r in sorted(
+                {int(p.name.split("_r")[1].split("_")[0]) for p in where.glob("agent_model_r*_s*.json")})] + [
+            (w, f"agent_{w}_s*.json") for w in REWARDS[1:]]
+        model_runs = []
+        for label, pattern in groups:
+            runs = [json.loads(p.read_text()) for p in sorted(where.glob(pattern))]
             if not runs:
                 continue
+            if label.startswith("model"):
+                model_runs += runs
             v = [r["greedy_oracle_return"] for r in runs]
             # recorded with the run (runs/ is not in git); older runs: from their curve, if it is still there
             dips = [r.get("late_dip", late_dip(Path(r["policy"]).parent / "curve.csv")) for r in runs]
-            lines.append(f"{reward:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
+            lines.append(f"{label:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
                          f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
                          f"{np.mean([r['seconds'] for r in runs]):.0f} s/run); late dip {np.mean(dips):7.2f} [{min(dips):7.2f}]")
+        oracle = [json.loads(p.read_text())["greedy_oracle_return"] for p in sorted(where.glob("agent_oracle_s*.json"))]
+        if model_runs and oracle:
+            v = np.array([r["greedy_oracle_return"] for r in model_runs]) / np.mean(oracle)
+            lines.append(f"# issue 50: agents on the models of every data seed ({len(v)} runs) / the oracle-with-hidden "
+                         f"agents' mean {np.mean(oracle):.2f}: median {np.median(v):.0%}, worst {v.min():.0%} "
+                         f"(targets 90% / 80%)")
     return "\n".join(lines)
 
 
@@ -259,6 +277,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--rewards", nargs="*", default=list(REWARDS), choices=REWARDS, help="agents: which rewards")
+    parser.add_argument("--model-repeats", type=int, nargs="*", default=[0],
+                        help="agents: on the CSC models of these repeats (data seeds; default 0)")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true")
     parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
@@ -277,9 +297,11 @@ def main() -> None:
         jobs = [(setting, a, r) for r in range(args.repeats) for a in ARCHS if not model_done(setting, a, r)]
         fn = run_model
     elif args.what == "agents":
-        if not (results / "model_csc_lstm_r0.json").is_file():
-            raise SystemExit("train the models first (at least repeat 0): bench/your_own_task.py models")
-        jobs = [(setting, w, s) for s in args.seeds for w in args.rewards if not agent_done(setting, w, s)]
+        missing = [r for r in args.model_repeats if not (results / f"model_csc_lstm_r{r}.json").is_file()]
+        if missing:
+            raise SystemExit(f"train the models first (repeats {missing}): bench/your_own_task.py models")
+        jobs = [(setting, w, s, r) for r in args.model_repeats for s in args.seeds for w in args.rewards
+                if (w == "model" or r == args.model_repeats[0]) and not agent_done(setting, w, s, r)]
         fn = run_agent
     else:
         jobs, fn = [], None
