@@ -161,6 +161,9 @@ def model_done(setting: Setting, arch: str, r: int) -> bool:
     path = setting.results / f"model_{arch}_r{r}.json"
     if not path.is_file():
         return False
+    if not checkpoint_path(setting, arch, r).with_suffix(".pt").is_file():  # runs/ is not in git
+        print(f"# {path.name}: its checkpoint is not on this machine: run again", flush=True)
+        return False
     stale = stale_settings(json.loads(path.read_text()).get("config"), load_train_config(setting.task, seed=r))
     if stale:
         print(f"# {path.name}: not today's training settings ({'; '.join(stale)}): run again", flush=True)
@@ -275,6 +278,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", nargs="?", choices=("models", "agents"))
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--archs", nargs="*", default=list(ARCHS), choices=ARCHS, help="models: which architectures")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--rewards", nargs="*", default=list(REWARDS), choices=REWARDS, help="agents: which rewards")
     parser.add_argument("--model-repeats", type=int, nargs="*", default=[0],
@@ -294,7 +298,7 @@ def main() -> None:
     results.mkdir(parents=True, exist_ok=True)
     if args.what == "models":
         dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
-        jobs = [(setting, a, r) for r in range(args.repeats) for a in ARCHS if not model_done(setting, a, r)]
+        jobs = [(setting, a, r) for r in range(args.repeats) for a in args.archs if not model_done(setting, a, r)]
         fn = run_model
     elif args.what == "agents":
         missing = [r for r in args.model_repeats if not (results / f"model_csc_lstm_r{r}.json").is_file()]
