@@ -301,7 +301,8 @@ def main() -> None:
         jobs = [(setting, a, r) for r in range(args.repeats) for a in args.archs if not model_done(setting, a, r)]
         fn = run_model
     elif args.what == "agents":
-        missing = [r for r in args.model_repeats if not (results / f"model_csc_lstm_r{r}.json").is_file()]
+        missing = [r for r in args.model_repeats if not (results / f"model_csc_lstm_r{r}.json").is_file()
+                   or not checkpoint_path(setting, "csc_lstm", r).with_suffix(".pt").is_file()]
         if missing:
             raise SystemExit(f"train the models first (repeats {missing}): bench/your_own_task.py models")
         jobs = [(setting, w, s, r) for r in args.model_repeats for s in args.seeds for w in args.rewards

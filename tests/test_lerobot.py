@@ -175,7 +175,7 @@ def test_anyones_dataset_is_a_task_of_its_own_labelled_modelled_and_exported_wit
     export_lerobot([tmp_path / "rec"], theirs, fps=10)
     shutil.rmtree(theirs / "meta/nmrm")
     report = import_lerobot(theirs, tmp_path / "bag", label_key="next.done")
-    task = f"lerobot:{theirs}"
+    task = f"lerobot:{theirs.resolve()}"
     assert report.task == task and report.episodes == 12 and report.labels == 12
     info = task_info(task)
     assert (info.state_size, info.discrete, info.action_size) == (2, False, 1)
@@ -210,6 +210,14 @@ def test_anyones_dataset_is_a_task_of_its_own_labelled_modelled_and_exported_wit
     np.testing.assert_allclose(first.column("next.reward").to_numpy(), expected, atol=1e-5)
     info = json.loads((back / "meta/nmrm/info.json").read_text())
     assert info["task"] == task
+    # our export of a dataset task comes back as a task of its own dataset (the first may be gone)
+    again = import_lerobot(back, tmp_path / "again")
+    assert again.task == f"lerobot:{back.resolve()}" and again.labels == 24  # dana's and next.done's
+    res = subprocess.run([executable("nmrm"), "check", "--checkpoint", str(checkpoint)], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "no environment" in res.stderr, res.stderr
+    bare = import_lerobot(theirs, tmp_path / "bare", action_key=None)  # --action ''
+    assert bare.task.endswith(",action=") and task_info(bare.task).action_size == 0
 
 
 def test_a_dataset_written_by_lerobot_itself_comes_in(tmp_path):

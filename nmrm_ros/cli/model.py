@@ -243,13 +243,16 @@ def check(
     learnt vs oracle return). Run it before training an agent; exit code 1 if a check fails."""
     from ..mil import load_checkpoint
     from ..rl.acceptance import hacking_check, memory_check
-    from ..tasks import check_task
+    from ..tasks import check_task, has_environment
 
     model, meta = load_checkpoint(checkpoint)
     from ..oracles import make_oracle
 
     task = meta.task
     check_task(task)
+    if not has_environment(task):
+        raise ValueError(f"task {task!r} is a recorded dataset with no environment: nmrm check rolls out episodes "
+                         f"and trains an agent in one (a model of a task spec with an environment can be checked)")
     make_oracle(task, oracle)
     typer.echo(f"checking {checkpoint} ({model.config.architecture} on {task})")
     results = [memory_check(model, task, seed=12345 + seed, oracle=oracle)]

@@ -12,9 +12,9 @@ task (`TaskInfo`) is read from the dataset's metadata:
 
 Such a task has no environment (`make_env` is a one-line error naming what to do instead), no
 oracle, no renderer: its episodes come from `nmrm import lerobot`, its frames from the dataset's
-camera, its labels from people, a labeller's file or a reward column. The bag records the spec,
-so the dataset must stay where it was imported from for `nmrm train` and the page to read its
-metadata.
+camera, its labels from people, a labeller's file or a reward column. The bag records the spec
+with the dataset's absolute path, so the dataset must stay where it was imported from: training,
+the page, serving the model and exporting read its metadata.
 """
 
 from __future__ import annotations
@@ -28,19 +28,20 @@ from .format import LeRobotError, read_episode_rows, read_info, read_tasks, vect
 
 DEFAULT_STATE = "observation.state"
 DEFAULT_ACTION = "action"
+MAX_INSTRUCTION = 500  # characters of the task texts shown as what to judge
 
 
 def dataset_task_spec(root: str | Path, state_key: str = DEFAULT_STATE, action_key: str | None = DEFAULT_ACTION) -> str:
-    """The task spec of the dataset at `root` read with these keys, e.g. "lerobot:datasets/pick";
-    LeRobotError if the path cannot be written into a spec (a comma)."""
-    text = str(root).rstrip("/") or "/"
+    """The task spec of the dataset at `root` read with these keys, e.g. "lerobot:/data/pick" (the
+    absolute path); LeRobotError if the path cannot be written into a spec (a comma)."""
+    text = str(Path(root).resolve())  # the bag, the checkpoint and an export record it: any working directory
     if "," in text:
         raise LeRobotError(f"{text}: a path with a comma cannot name a task; give --task, or move the dataset")
     spec = LEROBOT_PREFIX + text
     if state_key != DEFAULT_STATE:
         spec += f",state={state_key}"
-    if action_key and action_key != DEFAULT_ACTION:
-        spec += f",action={action_key}"
+    if action_key != DEFAULT_ACTION:
+        spec += f",action={action_key or ''}"  # action= : none
     return spec
 
 
@@ -58,12 +59,16 @@ def _dataset_task_info(text: str, root: str, state_key: str, action_key: str, xy
         texts = read_tasks(path)
     except LeRobotError as exc:
         raise TaskSpecError(f"task {text!r}: {exc}") from None
+    except (TypeError, AttributeError, KeyError, ValueError) as exc:  # metadata of the wrong shape
+        raise TaskSpecError(f"task {text!r}: the dataset's metadata is malformed ({type(exc).__name__}: {exc})") from None
     if not lengths or max(lengths) < 2:
         raise TaskSpecError(f"task {text!r}: the dataset has no episode of two frames or more")
     if xy is not None and max(xy) >= state_size:
         raise TaskSpecError(f"task {text!r}: xy={xy[0]}/{xy[1]} but the state has {state_size} values")
-    return TaskInfo(text, state_size, False, action_size, max(lengths) - 1,
-                    instruction=" / ".join(" ".join(str(t).split()) for t in texts))
+    instruction = " / ".join(" ".join(str(t).split()) for t in texts)
+    if len(instruction) > MAX_INSTRUCTION:  # a dataset with a text per episode: the page shows the start
+        instruction = instruction[:MAX_INSTRUCTION - 3].rstrip() + "..."
+    return TaskInfo(text, state_size, False, action_size, max(lengths) - 1, instruction=instruction)
 
 
 def dataset_task_info(spec: TaskSpec) -> TaskInfo:

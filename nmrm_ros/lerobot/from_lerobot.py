@@ -152,6 +152,7 @@ def import_lerobot(root: str | Path, out: str | Path, task: str | None = None,
     import json
 
     from ..tasks import task_info
+    from ..tasks.gym_task import LEROBOT_PREFIX
 
     t0 = time.perf_counter()
     root, out = Path(root), Path(out)
@@ -180,7 +181,10 @@ def import_lerobot(root: str | Path, out: str | Path, task: str | None = None,
         camera = cameras[0] if cameras else ""
     elif camera and camera not in cameras:
         raise LeRobotError(f"the dataset has no camera {camera!r} (its cameras: {', '.join(cameras) or 'none'})")
-    task = task or (ours or {}).get("task")
+    recorded = (ours or {}).get("task")
+    if recorded and str(recorded).startswith(LEROBOT_PREFIX):
+        recorded = None  # our export of a dataset task: the dataset imported now is the task
+    task = task or recorded
     if not task:  # anyone's dataset: the dataset is the task (`dataset_task`)
         from .dataset_task import dataset_task_spec
 

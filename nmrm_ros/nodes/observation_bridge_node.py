@@ -3,8 +3,10 @@
 Reads the `observation:` and `episode:` sections of a robot spec (`spec`, a YAML file;
 `nmrm_ros.ros.robot_spec`): it subscribes to each input topic (nav_msgs/Odometry,
 geometry_msgs/PoseStamped, sensor_msgs/JointState, sensor_msgs/LaserScan, std_msgs/Float32MultiArray
-or any message whose fields are numbers), keeps the latest value of each, and `rate` times a
-second publishes one EnvObservation of their fields in order on `nmrm/observation`, for `task`.
+or any message whose fields are numbers; cameras, sensor_msgs/Image and CompressedImage, resized),
+keeps the latest value of each, and `rate` times a second publishes one EnvObservation on
+`nmrm/observation`, for `task`: the cameras' pixels then the other fields in order as its state,
+the fields of inputs marked privileged as its privileged state.
 A tick with an input older than `stale_after` s (or never seen) publishes nothing and is counted
 (a warning every 5 s says which input); a message whose fields cannot be read (a missing joint, a
 NaN) is dropped and counted the same way. Time is the node's clock, so `use_sim_time` is honoured.
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 
 from nmrm_msgs.msg import EnvObservation
 
@@ -69,6 +72,11 @@ class ObservationBridgeNode(NmrmNode):
         self.info = require_task(p["task"])
         self.task = p["task"]
         self.expected = self.info.state_size
+        if tuple(self.info.image_shape) != tuple(self.spec.image_shape):
+            have = "x".join(map(str, self.spec.image_shape)) or "no camera"
+            want = "x".join(map(str, self.info.image_shape)) or "no image"
+            raise NodeError(f"the spec's cameras make {have}; task {self.task} has {want} in its state "
+                            f"(image_shape H x W x C: the cameras' image size and channels)")
         self.episodes = int(p["episodes"])
         self.auto_start = bool(p["auto_start"])
         self.reset_timeout = float(p["reset_timeout"])
@@ -83,6 +91,7 @@ class ObservationBridgeNode(NmrmNode):
         self.resetting_since = None
         self.reset_future = None
         self.wrong_size_warned = False  # the state size is checked on the first full sample
+        self.privileged_size_warned = False
         self.wait_for = int(p["wait_for_subscribers"])
         self.wait_for_agent = bool(p["wait_for_agent"])
         self.action_topic = self.resolve_topic_name(ACTION)
@@ -124,24 +133,38 @@ class ObservationBridgeNode(NmrmNode):
             self.warned_at = now
             self.get_logger().warning(text)
 
-    def sample(self) -> list | None:
-        """The state of now (latest value of every input), or None if one is stale or missing."""
+    def sample(self) -> tuple | None:
+        """(state, privileged state) of now (the latest value of every input: the cameras' pixels
+        stacked along C, then the other fields; the privileged inputs' fields), or None if an
+        input is stale or missing."""
         now = self.get_clock().now().nanoseconds
-        state = []
+        images, state, privileged = [], [], []
         for inp, got in zip(self.spec.inputs, self.latest):
             if got is None or (now - got[1]) / 1e9 > self.spec.stale_after:
                 self.stale_ticks += 1
                 age = "never received" if got is None else f"{(now - got[1]) / 1e9:.2f} s old"
                 self._warn(f"{inp.topic} is stale ({age}); {self.stale_ticks} tick(s) skipped so far")
                 return None
-            state += got[0]
+            if inp.image is not None:
+                images.append(got[0])
+            elif inp.privileged:
+                privileged += got[0]
+            else:
+                state += got[0]
+        if images:
+            state = np.concatenate(images, axis=2).reshape(-1).tolist() + state
         if len(state) != self.expected:
             if not self.wrong_size_warned:
-                self.get_logger().error(f"the spec's fields make {len(state)} values, task {self.task} has "
+                self.get_logger().error(f"the spec's inputs make {len(state)} state values, task {self.task} has "
                                         f"state size {self.expected}: nothing published")
                 self.wrong_size_warned = True
             return None
-        return state
+        wanted = self.info.privileged_size
+        if wanted and privileged and len(privileged) != wanted and not self.privileged_size_warned:
+            self.get_logger().error(f"the spec's privileged inputs make {len(privileged)} values, task {self.task}'s "
+                                    f"oracle takes {wanted}")
+            self.privileged_size_warned = True
+        return state, privileged
 
     # -- episodes ----------------------------------------------------------------------------------
     def begin(self) -> None:
@@ -149,8 +172,8 @@ class ObservationBridgeNode(NmrmNode):
         self.step = 0
         self.running = True
 
-    def finish_episode(self, state: list, terminated: bool, truncated: bool) -> None:
-        self.publish(state, terminated, truncated)
+    def finish_episode(self, sample: tuple, terminated: bool, truncated: bool) -> None:
+        self.publish(sample, terminated, truncated)
         self.running = False
         self.done_episodes += 1
         self.get_logger().info(f"episode {self.episode}: {self.step} steps, "
@@ -166,9 +189,10 @@ class ObservationBridgeNode(NmrmNode):
         elif self.auto_start:
             self.begin()
 
-    def publish(self, state: list, terminated: bool = False, truncated: bool = False) -> None:
+    def publish(self, sample: tuple, terminated: bool = False, truncated: bool = False) -> None:
+        state, privileged = sample
         msg = EnvObservation(task=self.task, episode=self.episode, step=self.step, state=to_float_list(state),
-                             terminated=terminated, truncated=truncated)
+                             privileged=to_float_list(privileged), terminated=terminated, truncated=truncated)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = self.task
         self.pub.publish(msg)
@@ -195,15 +219,15 @@ class ObservationBridgeNode(NmrmNode):
             return
         if not self.running:
             return
-        state = self.sample()
-        if state is None:
+        sample = self.sample()
+        if sample is None:
             return
         if self.spec.max_steps and self.step >= self.spec.max_steps:
-            self.finish_episode(state, False, True)
-        elif self.step > 0 and self.spec.left_box(state):
-            self.finish_episode(state, True, False)
+            self.finish_episode(sample, False, True)
+        elif self.step > 0 and self.spec.left_box(sample[0]):
+            self.finish_episode(sample, True, False)
         else:
-            self.publish(state)
+            self.publish(sample)
             self.step += 1
 
     def on_start(self, request, response):
@@ -223,12 +247,12 @@ class ObservationBridgeNode(NmrmNode):
         if not self.running or self.step == 0:
             response.success, response.message = False, "no episode with a step to end"
             return response
-        state = self.sample()
-        if state is None:
+        sample = self.sample()
+        if sample is None:
             response.success, response.message = False, "an input is stale: cannot publish the final observation"
             return response
         ended = self.episode
-        self.finish_episode(state, False, True)
+        self.finish_episode(sample, False, True)
         response.success, response.message = True, f"episode {ended} ended at step {self.step}"
         return response
 

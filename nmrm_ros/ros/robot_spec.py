@@ -8,6 +8,10 @@ a twist, and when an episode ends (no node, no spin; read by observation_bridge 
         - {topic: /odom, type: nav_msgs/msg/Odometry, qos: sensor_data,
            fields: [pose.pose.position.x, pose.pose.position.y, "yaw(pose.pose.orientation)"]}
         - {topic: /scan, type: sensor_msgs/msg/LaserScan, qos: sensor_data, fields: [ranges], downsample: 8}
+        - {topic: /camera/image_raw/compressed, type: sensor_msgs/msg/CompressedImage, qos: sensor_data,
+           image: 64x64}         # a camera: its frame resized to 64x64 RGB (channels: 1 for grey)
+        - {topic: /mocap/pose, type: geometry_msgs/msg/PoseStamped, fields: [pose.position.x,
+           pose.position.y], privileged: true}   # for the oracle and the plots only
     episode:
       max_steps: 200             # truncated at this step
       box: {dims: [0, 1], low: [-2.0, -2.0], high: [2.0, 2.0]}   # terminated when a state leaves it
@@ -22,8 +26,13 @@ a twist, and when an episode ends (no node, no spin; read by observation_bridge 
         1: {angular.z: 1.0}
       # or continuous: {fields: [linear.x, angular.z], low: [-0.2, -1.0], high: [0.2, 1.0]}
 
-The state is the inputs' fields in order: its size must be the task's state size (the bridge's
-`task` parameter). Every mistake is a ValueError naming the key.
+The state is the cameras' pixels first (`sensor_msgs/Image` in any common encoding, or
+`CompressedImage`; `image: HxW`, all cameras of one size, stacked along the channels in order:
+`nmrm_ros.ros.image_messages`), then the other inputs' fields in order: the task's state (the
+bridge's `task` parameter; with cameras, a task whose `image_shape` is H x W x the channels).
+Inputs marked `privileged: true` are not in the state: their fields are the observation's
+privileged state (what an oracle judges with; a model or an agent never sees it). Every mistake is
+a ValueError naming the key.
 """
 
 from __future__ import annotations
@@ -35,6 +44,7 @@ from typing import Callable
 import yaml
 
 from .field_paths import compile_fields
+from .image_messages import IMAGE_TYPES, image_reader, is_image_type
 
 TWIST_FIELDS = tuple(f"{part}.{axis}" for part in ("linear", "angular") for axis in "xyz")
 QOS_NAMES = ("sensor_data", "reliable")
@@ -47,7 +57,10 @@ class InputSpec:
     fields: list
     qos: str = "reliable"
     downsample: int | None = None
-    read: Callable | None = None  # msg -> list of floats
+    read: Callable | None = None  # msg -> list of floats, or (H, W, C) uint8 pixels of a camera
+    image: tuple | None = None    # a camera: (H, W) its frames are resized to
+    channels: int = 0             # a camera: 3 (RGB) or 1 (grey)
+    privileged: bool = False      # its fields go to the privileged state, not the state
 
 
 @dataclass
@@ -68,6 +81,17 @@ class RobotSpec:
     continuous_fields: list = field(default_factory=list)
     continuous_low: list = field(default_factory=list)
     continuous_high: list = field(default_factory=list)
+
+    @property
+    def cameras(self) -> list:
+        """The camera inputs, in order (their pixels lead the state)."""
+        return [i for i in self.inputs if i.image is not None]
+
+    @property
+    def image_shape(self) -> tuple:
+        """(H, W, C) of the state's image (the cameras stacked along C), () without a camera."""
+        cams = self.cameras
+        return (*cams[0].image, sum(c.channels for c in cams)) if cams else ()
 
     def left_box(self, state) -> bool:
         """True if `state` is outside the episode box (no box: never)."""
@@ -124,17 +148,36 @@ def parse_robot_spec(text: str, source: str = "robot spec") -> RobotSpec:
         where = f"observation.inputs[{i}]"
         if not isinstance(item, dict):
             raise ValueError(f"{where} must be a mapping")
-        for key in ("topic", "type", "fields"):
+        for key in ("topic", "type"):
             if key not in item:
                 raise ValueError(f"{where}.{key} is missing")
-        if not isinstance(item["fields"], list):
-            raise ValueError(f"{where}.fields must be a list")
         qos = item.get("qos", "reliable")
         if qos not in QOS_NAMES:
             raise ValueError(f"{where}.qos must be one of {', '.join(QOS_NAMES)}, got {qos!r}")
-        spec = InputSpec(str(item["topic"]), str(item["type"]), list(item["fields"]), qos, item.get("downsample"))
+        privileged = item.get("privileged", False)
+        if not isinstance(privileged, bool):
+            raise ValueError(f"{where}.privileged must be true or false, got {privileged!r}")
+        if is_image_type(str(item["type"])):
+            inputs.append(_camera(item, where, qos, privileged))
+            continue
+        if "fields" not in item:
+            raise ValueError(f"{where}.fields is missing")
+        if not isinstance(item["fields"], list):
+            raise ValueError(f"{where}.fields must be a list")
+        unknown = set(item) - {"topic", "type", "fields", "qos", "downsample", "privileged"}
+        if unknown:
+            raise ValueError(f"{where}: unknown key(s) {sorted(unknown)} (image: is for camera types, "
+                             f"{', '.join(IMAGE_TYPES)})")
+        spec = InputSpec(str(item["topic"]), str(item["type"]), list(item["fields"]), qos, item.get("downsample"),
+                         privileged=privileged)
         spec.read = compile_fields(spec.type_name, spec.fields, spec.downsample, where=f"{where} ({spec.topic})")
         inputs.append(spec)
+    sizes = {i.image for i in inputs if i.image is not None}
+    if len(sizes) > 1:
+        raise ValueError(f"observation.inputs: the cameras must share one image size, got "
+                         f"{', '.join(f'{h}x{w}' for h, w in sorted(sizes))}")
+    if all(i.privileged for i in inputs):
+        raise ValueError("observation.inputs: every input is privileged: the state would be empty")
     ep = _table(raw, "episode", "", required=False)
     box = _table(ep, "box", "episode.", required=False)
     dims, low, high = (list(box.get(k, [])) for k in ("dims", "low", "high"))
@@ -174,6 +217,28 @@ def parse_robot_spec(text: str, source: str = "robot spec") -> RobotSpec:
         action_timeout=_number(act, "timeout", 0.5, "action", positive=True), discrete=table,
         continuous_fields=cont_fields, continuous_low=[float(x) for x in cont_low],
         continuous_high=[float(x) for x in cont_high])
+
+
+def _camera(item: dict, where: str, qos: str, privileged: bool) -> InputSpec:
+    """The InputSpec of a camera input (`image: HxW`, optional `channels: 3 | 1`)."""
+    unknown = set(item) - {"topic", "type", "qos", "image", "channels", "privileged"}
+    if unknown:
+        raise ValueError(f"{where}: a camera input takes topic, type, qos, image and channels, not {sorted(unknown)}")
+    if privileged:
+        raise ValueError(f"{where}: a camera cannot be privileged (the privileged state is numbers)")
+    try:
+        h, w = (int(v) for v in str(item.get("image", "")).lower().split("x"))
+        if h < 1 or w < 1:
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"{where}.image must be the size HxW its frames are resized to, e.g. 64x64, "
+                         f"got {item.get('image')!r}") from None
+    channels = item.get("channels", 3)
+    if channels not in (1, 3) or isinstance(channels, bool):
+        raise ValueError(f"{where}.channels must be 3 (RGB) or 1 (grey), got {channels!r}")
+    spec = InputSpec(str(item["topic"]), str(item["type"]), [], qos, image=(h, w), channels=int(channels))
+    spec.read = image_reader(spec.type_name, spec.image, spec.channels)
+    return spec
 
 
 def load_robot_spec(path: str | Path) -> RobotSpec:

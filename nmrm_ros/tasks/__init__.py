@@ -69,6 +69,11 @@ def _module_words(task: str) -> tuple:
     return " ".join(instruction.split()), tuple((str(k), str(v)) for k, v in legend.items())
 
 
+def has_environment(task: str) -> bool:
+    """Whether `task` has an environment to run (a recorded dataset, `lerobot:<dir>`, has none)."""
+    return not (is_task_spec(task) and parse_task_spec(task).kind == "lerobot")
+
+
 def task_info(task: str) -> TaskInfo:
     """What the package knows of `task` (`TaskInfo`: state layout, actions, model family, label
     range, arena, screening rule, frames); ValueError (one line) for an unknown task."""

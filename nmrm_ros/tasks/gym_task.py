@@ -103,6 +103,10 @@ def parse_task_spec(text: str) -> TaskSpec:
     extra = {"image": image, "privileged": privileged}
     if head.startswith(LEROBOT_PREFIX):
         target = head[len(LEROBOT_PREFIX):]
+        for pair in pairs:  # feature names as written (not YAML: state=true is the feature "true")
+            key, _, value = pair.partition("=")
+            if key.strip() in ("state", "action"):
+                kwargs[key.strip()] = value.strip()
         unknown = sorted(set(kwargs) - {"state", "action"}) + [k for k, v in (("max_steps", max_steps),
                                                                               ("image", image),
                                                                               ("privileged", privileged)) if v]
