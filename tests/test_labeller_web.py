@@ -3,6 +3,7 @@ real env_sim; requests go over HTTP; the page is checked in a real (headless) Ch
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -357,6 +358,36 @@ def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
                                              "apt when run as root)")
+def test_a_pixel_task_is_played_from_the_frames_the_model_sees(ros_domain, tmp_path):
+    """key_pixels through the graph (env_sim render:=true): the page's episodes carry no pixel
+    numbers (no plot, no arena: the frames are the view) and their frames are the observed image,
+    each pixel drawn 4x4; a label is taken as for any task."""
+    from PIL import Image
+
+    node = WebNode(tmp_path / "labels", task="key_pixels")
+    try:
+        play_episodes(1, task="key_pixels", render=True, render_format="png", render_width=240)
+        queue = node.wait_for_queue(1)
+        episode = queue[0]["episode"]
+        status, info, _ = node.request("/api/info")
+        assert status == 200 and info["arena"] is None
+        status, body, _ = node.request(f"/api/episode/{episode}")
+        assert status == 200 and body["states"][0] == [] and len(body["states"]) == queue[0]["length"] + 1
+        assert body["frames"] == list(range(queue[0]["length"] + 1))
+        raw = urllib.request.urlopen(urllib.request.Request(f"{node.base}/api/episode/{episode}/frame/0",
+                                                            headers={"X-Token": node.token} if node.token else {}),
+                                     timeout=10)
+        frame = np.asarray(Image.open(io.BytesIO(raw.read())).convert("RGB"))
+        assert frame.shape == (128, 128, 3)
+        assert len(np.unique(frame[::4, ::4].reshape(-1, 3), axis=0)) > 2  # zones and the agent's blob
+        np.testing.assert_array_equal(frame[::4, ::4], frame[3::4, 3::4])  # 4x4 blocks of one colour
+        status, answer, _ = node.request("/api/label", {"episode": episode, "return": 3.0},
+                                         headers={"Origin": node.base})
+        assert status == 200 and answer["return"] == 3.0, answer
+    finally:
+        node.stop()
+
+
 def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, tmp_path):
     """A Gymnasium task (CartPole, episodes of varying length) has no arena: the page plots each of
     its 4 state dimensions over the episode's steps with a cursor at the step shown, plays the

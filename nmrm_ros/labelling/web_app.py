@@ -75,6 +75,9 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     `team()`: extra fields of /api/team (e.g. gold errors); `frames`: a FrameStore of rendered
     frames; `allowed_hosts`: the `Host` values ("name:port", lower case) this server answers to
     (None: any; the set may be filled once the port is known)."""
+    from ..tasks import task_info
+
+    image_values = task_info(queue.task).image_values  # an image state's pixels: not sent as numbers
     if tokens is None and token:
         tokens = {token: queue.people[0]}
     if tokens is not None and not set(tokens.values()) <= set(queue.people):
@@ -165,7 +168,8 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
             return _error(404, str(exc))
         label = queue.label_of(ep.episode, request[PERSON])
         return web.json_response({"episode": ep.episode, "length": ep.length,
-                                  "states": ep.states.astype(float).round(5).tolist(),
+                                  # an image state's pixels are seen as its frames, not plotted
+                                  "states": ep.states[:, image_values:].astype(float).round(5).tolist(),
                                   "frames": frames.steps(ep.episode) if frames is not None else [],
                                   "label": None if label is None else label.value})
 

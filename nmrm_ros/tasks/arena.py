@@ -9,9 +9,14 @@ from __future__ import annotations
 def arena(task: str) -> dict | None:
     """What is drawn under a path: {"bounds": [x0, x1, y0, y1] or None, "zones": [[x0, x1, y0, y1,
     kind], ...], "xy": [i, j] (the state dimensions of the position)}; None for a task of the
-    user's without `xy` (the page then plots each state dimension over time). A task of the
+    user's without `xy` (the page then plots each state dimension over time) and for a task whose
+    state is an image (the page shows its frames). A task of the
     user's module may say more with a module attribute `ARENA = {"bounds": [...], "zones": [...]}`
     (e.g. nmrm_ros.robots.delivery)."""
+    from . import task_info
+
+    if task_info(task).image_shape:
+        return None  # an image state: people see its frames; its pixels are not a path
     if ":" in task:
         import importlib
 

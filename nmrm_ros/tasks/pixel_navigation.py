@@ -94,7 +94,7 @@ def pixel_task_info(task: str):
 
     base = navigation_task_info(base_task(task))
     return replace(base, name=task, state_size=IMAGE_SIZE * IMAGE_SIZE * 3, arena=None, classify=None,
-                   screening_classes=None, navigation=False, zones=(), map_states=None,
+                   screening_classes=None, navigation=False, zones=(), map_states=None, renders=True,
                    image_shape=(IMAGE_SIZE, IMAGE_SIZE, 3), privileged_size=2, pixels_of=base.name)
 
 
@@ -121,9 +121,16 @@ class PixelNavigationEnv(gym.Env):
     (IMAGE_SIZE * IMAGE_SIZE * 3,) float32 in 0..255; `info["privileged"]` is the true position
     [x, y]; no reward (as `NavigationEnv`)."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"]}
+    #: render(): the image the model sees, each pixel drawn as RENDER_SCALE x RENDER_SCALE (for people)
+    RENDER_SCALE = 4
 
-    def __init__(self, task: str = "key_pixels", episode_length: int = EPISODE_LENGTH) -> None:
+    def __init__(self, task: str = "key_pixels", episode_length: int = EPISODE_LENGTH,
+                 render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be rgb_array or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        self._image = None
         self.task = task
         self.base = base_task(task)
         self._env = NavigationEnv(task=self.base, episode_length=episode_length)
@@ -132,8 +139,17 @@ class PixelNavigationEnv(gym.Env):
         self.observation_space = gym.spaces.Box(0.0, 255.0, shape=(IMAGE_SIZE * IMAGE_SIZE * 3,), dtype=np.float32)
 
     def _observe(self, position: np.ndarray, info: dict):
-        state = pixel_states(self.base, position).astype(np.float32)
-        return state, dict(info, privileged=np.asarray(position, dtype=np.float32))
+        image = pixel_states(self.base, position)
+        self._image = image
+        return image.astype(np.float32), dict(info, privileged=np.asarray(position, dtype=np.float32))
+
+    def render(self) -> np.ndarray | None:
+        """The current observation as an RGB frame (IMAGE_SIZE * RENDER_SCALE square, uint8): what
+        the model sees, enlarged without smoothing; None without render_mode "rgb_array"."""
+        if self.render_mode != "rgb_array" or self._image is None:
+            return None
+        image = np.asarray(self._image, np.uint8).reshape(IMAGE_SIZE, IMAGE_SIZE, 3)
+        return np.repeat(np.repeat(image, self.RENDER_SCALE, axis=0), self.RENDER_SCALE, axis=1)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
