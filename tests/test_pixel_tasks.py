@@ -261,6 +261,33 @@ def test_an_agent_may_see_the_privileged_state_while_the_model_sees_pixels(key_d
         make_reward_env("key", "oracle", observe="privileged")
 
 
+def test_an_agent_that_sees_the_image_reads_it_with_a_cnn(key_data, tmp_path):
+    """observe state on a pixel task: the policy's features are a CNN of the image's 3072 leading
+    values and the served state after them, unchanged; saved, loaded and evaluated as any agent."""
+    import torch
+
+    from nmrm_ros.rl import evaluate_agent, train_agent
+    from nmrm_ros.rl.image_features import ImageStateExtractor
+    from stable_baselines3 import DQN
+
+    _, px = key_data
+    fit(px, "csc_lstm", load_train_config("key_pixels", max_epochs=1, threads=1), out=tmp_path / "m", progress=False)
+    train_agent("key_pixels", "model", tmp_path / "m", episodes=2, out=tmp_path / "agent", progress=False,
+                learning_starts=10)
+    model = DQN.load(tmp_path / "agent" / "policy.zip", device="cpu")
+    extractor = model.q_net.features_extractor
+    assert isinstance(extractor, ImageStateExtractor) and extractor.image_shape == (32, 32, 3)
+    obs = torch.rand(5, model.observation_space.shape[0]) * 255
+    features = extractor(obs)
+    assert features.shape == (5, 128 + model.observation_space.shape[0] - 3072)
+    np.testing.assert_array_equal(features[:, 128:].detach().numpy(), obs[:, 3072:].numpy())  # the served state as is
+    assert len(evaluate_agent(tmp_path / "agent" / "policy.zip", "key_pixels", episodes=2).returns) == 2
+    with pytest.raises(ValueError, match="does not start with a 32x32x3 image"):
+        import gymnasium as gym
+
+        ImageStateExtractor(gym.spaces.Box(0, 1, (10,)), (32, 32, 3))
+
+
 def test_two_losses_of_a_pixel_ensemble_before_one_backward(key_data):
     """feedback both: a return batch and a comparison batch, then one backward. The second
     forward must not overwrite the pixels the first one's backward reads."""

@@ -318,7 +318,8 @@ class Learner:
         try:
             monitored = [lambda env=env: Monitor(env) for env in self.envs]
             vec = ThreadedVecEnv(monitored) if len(monitored) > 1 else DummyVecEnv(monitored)
-            self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed)
+            self.model = make_algorithm(vec, self.algo, self.cfg, self.node.info.episode_length, seed=self.seed,
+                                        image_shape=self.node.info.image_shape)
             if self.overlap and len(self.envs) == 1:  # a fleet's envs step in threads of their own
                 self.model.overlap_training = True
                 self.envs[0].after_publish = self.model.train_pending

@@ -92,13 +92,19 @@ def check_trust_settings(cfg: dict, source) -> None:
                          f"got {steps!r}")
 
 
-def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0, verbose: int = 0):
+def make_algorithm(env, algo: str, cfg: dict, episode_length: int, seed: int = 0, verbose: int = 0,
+                   image_shape: tuple = ()):
     """The SB3 model for `env` (a gymnasium Env or VecEnv) from a config section.
 
     episode_length: steps per episode T (SB3 plans its epsilon schedule over `episodes * T` steps).
+    image_shape: (H, W, C) when the observation starts with an image's pixels: a small CNN reads
+    them (`image_features.ImageStateExtractor`); () for a vector observation.
     """
+    from .image_features import image_policy_kwargs
+
     policy_kwargs = {"net_arch": list(cfg["net_arch"]),
-                     "optimizer_kwargs": {"fused": bool(cfg.get("fused_adam", False))}}
+                     "optimizer_kwargs": {"fused": bool(cfg.get("fused_adam", False))},
+                     **image_policy_kwargs(image_shape)}
     if algo == "dqn":
         import warnings
 

@@ -220,7 +220,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     judges every episode (and is the reward of "oracle" / "oracle-no-hidden"); default the task's.
     callback: an `EpisodeCurveCallback` (or a subclass, e.g. the reward-model loop's rounds) used
     in place of a plain one; its `max_episodes` is set to `episodes`. observe: the agent sees the
-    task's state or its privileged state (`wrappers.OBSERVE`; recorded in agent.json). overrides:
+    task's state (an image state through a small CNN: `image_features`) or its privileged state
+    (`wrappers.OBSERVE`; recorded in agent.json). overrides:
     settings of config/rl.yaml (e.g. learning_starts).
     """
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -242,7 +243,8 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     if reward == "model":
         served = envs[0].served  # what the checkpoint serves where `served` was None
     vec = DummyVecEnv([lambda e=e: Monitor(e) for e in envs])
-    model = make_algorithm(vec, algo, cfg, info.episode_length, seed=seed)
+    model = make_algorithm(vec, algo, cfg, info.episode_length, seed=seed,
+                           image_shape=info.image_shape if observe == "state" else ())
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
     # as its base, so give each env its own base (VecEnv.seed can only add the env index).
     vec._seeds = seeds  # noqa: SLF001 - no public setter
