@@ -63,6 +63,11 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
     task = task or record.task
     if record.task != task:
         raise ValueError(f"the checkpoint was trained on {record.task!r}, not {task!r}")
+    from ..tasks import task_info
+
+    if task_info(task).image_shape:
+        raise ValueError(f"task {task!r} has an image state: the views (maps, probes, embeddings against the "
+                         f"oracle's hidden state) are drawn for vector states only, not yet for images")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     name = Path(checkpoint).with_suffix("").name
