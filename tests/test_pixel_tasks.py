@@ -322,3 +322,16 @@ def test_a_pixel_episode_recorded_and_read_back_keeps_its_privileged_state(key_d
     np.testing.assert_array_equal(back.states, part.states.astype(np.float32))
     np.testing.assert_array_equal(back.privileged, part.privileged)
     np.testing.assert_array_equal(back.returns, part.returns)
+    # each step's frame, for people (the labelling page plays them), is the state's image enlarged
+    import io
+
+    from PIL import Image
+
+    from nmrm_ros.bags.reader import iter_decoded
+    from nmrm_ros.tasks.frames import frame_id, image_state_frame
+
+    frames = {m.header.frame_id: m for _, _, _, m in iter_decoded(tmp_path / "bag", ["/nmrm/frame"])}
+    assert len(frames) == int((part.lengths + 1).sum())
+    shown = np.asarray(Image.open(io.BytesIO(bytes(frames[frame_id(0, 3)].data))).convert("RGB"))
+    np.testing.assert_array_equal(shown, image_state_frame(part.states[0, 3], (32, 32, 3)))
+    assert shown.shape == (128, 128, 3)

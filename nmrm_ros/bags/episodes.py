@@ -41,6 +41,7 @@ T_ACT = "nmrm_msgs/msg/AgentAction"
 T_RET = "nmrm_msgs/msg/TrajectoryReturn"
 T_ORC = "nmrm_msgs/msg/OracleStep"
 T_PREF = "nmrm_msgs/msg/TrajectoryPreference"
+FRAME_TOPIC, FRAME_TYPE = "/nmrm/frame", "sensor_msgs/msg/CompressedImage"
 TOPIC = {t: topic for topic, t in TOPIC_TYPES.items()}
 #: log time of the first message of generated bags (2025-01-01T00:00:00Z), and the step period
 BASE_TIME_NS = 1_735_689_600 * 10**9
@@ -58,7 +59,9 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
                       preference_labeller: str | None = None) -> Path:
     """Write every trajectory of `ds` as an episode (numbered from `first_episode`), with its
     return label from `labeller` (default oracle/<task>; returns=False: none), then each of its
-    comparisons from `preference_labeller` (default: `labeller`)."""
+    comparisons from `preference_labeller` (default: `labeller`). A task whose state is an image
+    also gets each step's frame on /nmrm/frame (PNG, `frames.image_state_frame`), as env_sim
+    render:=true records it, so the labelling page plays the episodes."""
     if ds.final_states is None:
         raise ValueError("the dataset has no final observations (toy bags are not episodes)")
     labeller = labeller or f"oracle/{ds.task}"
@@ -82,7 +85,11 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
 
 def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle, name, returns,
                     preference_labeller) -> None:
+    from ..tasks import task_info
+    from ..tasks.frames import encode_frame, frame_id, image_state_frame
+
     t = start_ns
+    image_shape = task_info(ds.task).image_shape  # an image state: its frame for people, as env_sim renders it
     with BagWriter(path, file_name=f"{name}_0.mcap") as bag:
         for i in range(len(ds)):
             e = first_episode + i
@@ -95,6 +102,10 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                     "header": stamped_header(t, ds.task), "task": ds.task, "episode": e, "step": step,
                     "state": [float(x) for x in state], "terminated": False, "truncated": final,
                     "privileged": [float(x) for x in privileged]}, t)
+                if image_shape:
+                    bag.write_dict(FRAME_TOPIC, FRAME_TYPE, {
+                        "header": stamped_header(t, frame_id(e, step)), "format": "png",
+                        "data": encode_frame(image_state_frame(state, image_shape), width=4096, fmt="png")}, t)
                 if not final:
                     if ds.actions is not None:
                         a = np.asarray(ds.actions[i, step], dtype=np.float64).reshape(-1)

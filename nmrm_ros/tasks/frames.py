@@ -49,3 +49,19 @@ def encode_frame(rgb: np.ndarray, width: int = 240, fmt: str = "jpeg", quality: 
     else:
         image.save(out, format="PNG", optimize=False)
     return out.getvalue()
+
+
+#: an image state is shown to people at least this many pixels wide (each pixel a square block)
+MIN_SHOWN_WIDTH = 128
+
+
+def image_state_frame(state: np.ndarray, image_shape: tuple) -> np.ndarray:
+    """The RGB frame (H*k, W*k, 3) uint8 of a state whose leading values are an image
+    (`TaskInfo.image_shape` (H, W, C)): what a model sees, each pixel a k x k block (k: the
+    smallest making it MIN_SHOWN_WIDTH wide; no smoothing). One channel is grey; channels beyond
+    the first three (stacked cameras) are not shown."""
+    h, w, c = image_shape
+    image = np.clip(np.asarray(state, np.float32).reshape(-1)[:h * w * c], 0, 255).astype(np.uint8).reshape(h, w, c)
+    rgb = np.repeat(image[..., :1], 3, axis=2) if c < 3 else image[..., :3]
+    k = max(1, -(-MIN_SHOWN_WIDTH // w))
+    return np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)

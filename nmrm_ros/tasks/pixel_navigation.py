@@ -122,8 +122,6 @@ class PixelNavigationEnv(gym.Env):
     [x, y]; no reward (as `NavigationEnv`)."""
 
     metadata = {"render_modes": ["rgb_array"]}
-    #: render(): the image the model sees, each pixel drawn as RENDER_SCALE x RENDER_SCALE (for people)
-    RENDER_SCALE = 4
 
     def __init__(self, task: str = "key_pixels", episode_length: int = EPISODE_LENGTH,
                  render_mode: str | None = None) -> None:
@@ -144,12 +142,13 @@ class PixelNavigationEnv(gym.Env):
         return image.astype(np.float32), dict(info, privileged=np.asarray(position, dtype=np.float32))
 
     def render(self) -> np.ndarray | None:
-        """The current observation as an RGB frame (IMAGE_SIZE * RENDER_SCALE square, uint8): what
-        the model sees, enlarged without smoothing; None without render_mode "rgb_array"."""
+        """The current observation as an RGB frame (`frames.image_state_frame`: 128 x 128, uint8):
+        what the model sees, enlarged without smoothing; None without render_mode "rgb_array"."""
+        from .frames import image_state_frame
+
         if self.render_mode != "rgb_array" or self._image is None:
             return None
-        image = np.asarray(self._image, np.uint8).reshape(IMAGE_SIZE, IMAGE_SIZE, 3)
-        return np.repeat(np.repeat(image, self.RENDER_SCALE, axis=0), self.RENDER_SCALE, axis=1)
+        return image_state_frame(self._image, (IMAGE_SIZE, IMAGE_SIZE, 3))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
