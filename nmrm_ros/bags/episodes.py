@@ -103,9 +103,10 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                     "state": [float(x) for x in state], "terminated": False, "truncated": final,
                     "privileged": [float(x) for x in privileged]}, t)
                 if image_shape:
+                    frame = image_state_frame(state, image_shape)
                     bag.write_dict(FRAME_TOPIC, FRAME_TYPE, {
                         "header": stamped_header(t, frame_id(e, step)), "format": "png",
-                        "data": encode_frame(image_state_frame(state, image_shape), width=4096, fmt="png")}, t)
+                        "data": encode_frame(frame, width=frame.shape[1], fmt="png")}, t)  # its own size
                 if not final:
                     if ds.actions is not None:
                         a = np.asarray(ds.actions[i, step], dtype=np.float64).reshape(-1)
