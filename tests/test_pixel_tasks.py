@@ -335,3 +335,51 @@ def test_a_pixel_episode_recorded_and_read_back_keeps_its_privileged_state(key_d
     shown = np.asarray(Image.open(io.BytesIO(bytes(frames[frame_id(0, 3)].data))).convert("RGB"))
     np.testing.assert_array_equal(shown, image_state_frame(part.states[0, 3], (32, 32, 3)))
     assert shown.shape == (128, 128, 3)
+
+
+def test_explain_draws_a_pixel_models_views_at_the_positions_behind_its_images(key_data, tmp_path, camera_module):
+    """`nmrm explain` of a pixel Key model: the state task's views (maps, probes, embedding, a bag's
+    episodes), the model reading the image of each position; a camera task, whose images have no
+    positions to draw them at, is refused in one line."""
+    import subprocess
+    import sys
+
+    from nmrm_ros.bags.episodes import write_dataset_bag
+    from nmrm_ros.interpret import explain
+    from nmrm_ros.interpret.episode_view import read_episodes
+    from nmrm_ros.interpret.reward_maps import context_prefixes, grid, learnt_reward_map
+    from nmrm_ros.interpret.traces import pixel_inputs
+    from nmrm_ros.tasks.pixel_navigation import pixel_states
+
+    ds, px = key_data
+    run = fit(px, "csc_lstm", load_train_config("key_pixels", max_epochs=1, threads=1), out=tmp_path / "m",
+              progress=False)
+    # a reward map of the pixel model is its online stepper on the images of the prefix and of each point
+    label, prefix = context_prefixes("key")[1]
+    n = 5
+    learnt = learnt_reward_map(run.model, prefix, n, "key", pixel_inputs("key_pixels"))
+    online = OnlineRewardModel(run.model)
+    for i, point in enumerate(grid(n, "key")[2][:7]):
+        images = pixel_states("key", np.vstack([prefix, point[None]]))
+        assert learnt.ravel()[i] == pytest.approx(online.episode_rewards(images)[-1], abs=1e-4)
+    # a bag of pixel episodes: the oracle judges the recorded positions
+    bag = write_dataset_bag(px.subset(np.arange(4)), tmp_path / "bag")
+    rec = next(iter(read_episodes(bag).values()))
+    np.testing.assert_array_equal(rec.privileged, ds.states[0, :ds.lengths[0]].astype(np.float32))
+    np.testing.assert_allclose(rec.oracle, ds.rewards[0, :ds.lengths[0]])
+    out = tmp_path / "views"
+    result = subprocess.run([sys.executable, "-m", "nmrm_ros.cli", "explain", "--checkpoint", str(run.checkpoint),
+                             "--bag", str(bag), "--out", str(out), "--episodes", "1"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in out.glob("*.png")) == [
+        "episode_root_0.png", "hidden_embedding.png", "probe_key_first.png", "probe_no_key.png", "reward_maps.png"]
+    assert "read the image of each position" in (out / "index.html").read_text()
+    # a camera task: no positions behind its images to draw the views at
+    task = "camera_room:CameraRoom,max_steps=20,image=16x16,privileged=pose"
+    cam = build_model(model_config("csc_lstm", task, 768))
+    from nmrm_ros.mil import Run
+
+    path = Run.of(cam.eval(), task).save(tmp_path / "cam")
+    with pytest.raises(ValueError, match="only the pixel navigation tasks"):
+        explain(path, tmp_path / "cam_views", n=4)

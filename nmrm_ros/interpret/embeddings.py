@@ -49,9 +49,10 @@ def project(hidden: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:
     return centred @ vt[:2].T, f"PCA of the {k}-D hidden state", var[:2]
 
 
-def hidden_embedding(model, task: str, states: np.ndarray, lengths: np.ndarray) -> Embedding:
-    """Embedding of the hidden states of trajectories states (N, T, d) with `lengths` (N,)."""
-    _, hidden = model_traces(model, states, lengths)
+def hidden_embedding(model, task: str, states: np.ndarray, lengths: np.ndarray, inputs=None) -> Embedding:
+    """Embedding of the hidden states of trajectories states (N, T, d) of `task` with `lengths`
+    (N,); inputs: what the model reads of the states (`model_traces`; None: the states)."""
+    _, hidden = model_traces(model, states, lengths, inputs)
     _, oracle_hidden = oracle_traces(task, states)
     real = np.arange(states.shape[1])[None, :] < np.asarray(lengths)[:, None]
     points, how, explained = project(hidden[real])

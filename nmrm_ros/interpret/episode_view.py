@@ -24,7 +24,9 @@ _OBS, _REWARD, _ORACLE = "EnvObservation", "RewardStep", "OracleStep"
 class EpisodeRecord:
     """task; states (L, d) s_0..s_{L-1} (the final observation excluded); served (L,) the recorded
     r'_t or None; served_by: RewardStep.source values seen; oracle (L,) r_t; oracle_recorded:
-    whether the oracle reward came from OracleStep messages (else computed)."""
+    whether the oracle reward came from OracleStep messages (else computed, from the privileged
+    state where the task has one); privileged (L, p): the recorded privileged states (e.g. the
+    positions behind a pixel task's images), or None."""
 
     task: str
     states: np.ndarray
@@ -32,6 +34,7 @@ class EpisodeRecord:
     served_by: list
     oracle: np.ndarray
     oracle_recorded: bool
+    privileged: np.ndarray | None = None
 
 
 def _source(topic: str) -> str:
@@ -61,16 +64,18 @@ def read_episodes(bag: str | Path) -> dict:
         if sorted(steps) != list(range(last + 1)) or last == 0:
             continue
         states = np.array([list(steps[t].state) for t in range(last)], np.float32)
+        privileged = (np.array([list(steps[t].privileged) for t in range(last)], np.float32)
+                      if all(len(getattr(steps[t], "privileged", ())) for t in range(last)) else None)
         have_served = all(t in served[key] for t in range(last))
         have_oracle = all(t in oracle[key] for t in range(last))
         if have_oracle:
             rewards = np.array([oracle[key][t].reward for t in range(last)], np.float64)
         else:
-            rewards = oracle_traces(task[key], states)[0]
+            rewards = oracle_traces(task[key], states if privileged is None else privileged)[0]
         episodes[key] = EpisodeRecord(
             task[key], states,
             np.array([served[key][t].reward for t in range(last)], np.float64) if have_served else None,
-            sorted({served[key][t].source for t in served[key]}), rewards, have_oracle)
+            sorted({served[key][t].source for t in served[key]}), rewards, have_oracle, privileged)
     if not episodes:
         raise BagError(f"{bag}: no complete episode (EnvObservation steps 0..L) in the bag")
     return episodes

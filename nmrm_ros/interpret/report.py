@@ -24,7 +24,7 @@ from .embeddings import hidden_embedding
 from .episode_view import read_episodes
 from .probes import probe_states
 from .reward_maps import context_prefixes, learnt_reward_map, oracle_reward_map
-from .traces import model_traces, oracle_traces
+from .traces import model_traces, oracle_traces, pixel_inputs
 
 
 @dataclass
@@ -34,21 +34,40 @@ class Figure:
     caption: str
 
 
-def _trajectories(task: str, bag: str | Path | None, n: int, seed: int):
-    """(states (N, T, d), lengths (N,), description) from a bag's complete episodes or generated."""
+def _trajectories(task: str, bag: str | Path | None, n: int, seed: int, view_task: str):
+    """(states (N, T, d), lengths (N,), description) of `view_task` (`task`'s, or for a pixel task
+    its state task's: the positions behind the images) from a bag's complete episodes of `task`
+    or generated."""
     if bag is not None:
         episodes = [e for e in read_episodes(bag).values() if e.task == task][:n]
         if not episodes:
             raise ValueError(f"{bag}: no complete episode of task {task!r}")
-        horizon = max(len(e.states) for e in episodes)
-        states = np.zeros((len(episodes), horizon, episodes[0].states.shape[1]), np.float32)
-        for i, e in enumerate(episodes):
-            states[i, :len(e.states)] = e.states
-        return states, np.array([len(e.states) for e in episodes]), f"{len(episodes)} episodes of {bag}"
+        if view_task != task and any(e.privileged is None for e in episodes):
+            raise ValueError(f"{bag}: its {task} episodes have no privileged state (the positions behind the images)")
+        seen = [e.states if view_task == task else e.privileged for e in episodes]
+        horizon = max(len(x) for x in seen)
+        states = np.zeros((len(seen), horizon, seen[0].shape[1]), np.float32)
+        for i, x in enumerate(seen):
+            states[i, :len(x)] = x
+        return states, np.array([len(x) for x in seen]), f"{len(episodes)} episodes of {bag}"
     from ..datasets import generate_screened
 
-    ds = generate_screened(task, n, seed=seed)
+    ds = generate_screened(view_task, n, seed=seed)
     return ds.states, ds.lengths, f"{len(ds)} screened {task} trajectories (data seed {seed})"
+
+
+def _views_of(task: str) -> tuple:
+    """(the task whose states the views draw, what the model reads of them): (task, None) for a
+    vector state; a pixel navigation task's state task and its renderer (`pixel_inputs`); a
+    ValueError (one line) for any other image state."""
+    info = task_info(task)
+    if not info.image_shape:
+        return task, None
+    if not info.pixels_of:
+        raise ValueError(f"task {task!r} has an image state: the views (maps, probes, embeddings against the "
+                         f"oracle's hidden state) are drawn from the positions behind the images, which only the "
+                         f"pixel navigation tasks (<t>_pixels) define")
+    return info.pixels_of, pixel_inputs(task)
 
 
 def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = None,
@@ -63,11 +82,7 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
     task = task or record.task
     if record.task != task:
         raise ValueError(f"the checkpoint was trained on {record.task!r}, not {task!r}")
-    from ..tasks import task_info
-
-    if task_info(task).image_shape:
-        raise ValueError(f"task {task!r} has an image state: the views (maps, probes, embeddings against the "
-                         f"oracle's hidden state) are drawn for vector states only, not yet for images")
+    view_task, inputs = _views_of(task)  # a pixel task: drawn at the positions, the model reads images
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     name = Path(checkpoint).with_suffix("").name
@@ -76,41 +91,47 @@ def explain(checkpoint: str | Path, out: str | Path, bag: str | Path | None = No
     figures: list = []
     has_memory = model.hidden_size > 0  # an LSTM's h' or a transformer's z
 
-    states, lengths, described = _trajectories(task, bag, n, seed)
+    states, lengths, described = _trajectories(task, bag, n, seed, view_task)
     if has_memory:
-        emb = hidden_embedding(model, task, states, lengths)
+        emb = hidden_embedding(model, view_task, states, lengths, inputs)
         figures.append(Figure("Hidden-state embedding", plots.embedding_figure(
-            emb, task, f"{name} ({arch}) on {task}", out / "hidden_embedding.png"),
+            emb, view_task, f"{name} ({arch}) on {task}", out / "hidden_embedding.png"),
             f"h'_(t+1) of {described}; {emb.projection}."))
 
-    maps = [(c.label, learnt_reward_map(model, prefix, grid_size, task), oracle_reward_map(task, prefix, grid_size))
-            for c, prefix in context_prefixes(task)]
+    maps = [(c.label, learnt_reward_map(model, prefix, grid_size, view_task, inputs),
+             oracle_reward_map(view_task, prefix, grid_size))
+            for c, prefix in context_prefixes(view_task)]
     if maps:
-        figures.append(Figure("Reward maps", plots.reward_map_figure(task, maps, out / "reward_maps.png"),
+        note = task_info(view_task).map_note
+        figures.append(Figure("Reward maps", plots.reward_map_figure(view_task, maps, out / "reward_maps.png"),
                               "Reward for one step at each (x, y) after a context (a probe cut at "
-                              "step t); learnt above, oracle below." + (
-                                  f" {task_info(task).map_note}" if task_info(task).map_note else "")))
+                              "step t); learnt above, oracle below." + (f" {note}" if note else "")
+                              + (" The model read the image of each position." if inputs else "")))
 
-    for probe, path in probe_states(task):
-        rewards, hidden = model_traces(model, path)
-        oracle_r, oracle_h = oracle_traces(task, path)
+    for probe, path in probe_states(view_task):
+        rewards, hidden = model_traces(model, path, inputs=inputs)
+        oracle_r, oracle_h = oracle_traces(view_task, path)
         file = out / f"probe_{probe.name.replace(' ', '_').replace('-', '_')}.png"
         figures.append(Figure("Probe trajectories", plots.trace_figure(
-            task, f"probe '{probe.name}': {probe.description}", path,
+            view_task, f"probe '{probe.name}': {probe.description}", path,
             {"learnt": rewards, "oracle": oracle_r}, hidden, oracle_h, file),
             f"{probe.name}: {probe.description}."))
 
     if bag is not None:
         for (source, episode), rec in list(read_episodes(bag).items())[:episodes]:
+            drawn_task = task_info(rec.task).pixels_of or rec.task  # a pixel task's episode: drawn at its positions
+            if drawn_task != rec.task and rec.privileged is None:
+                continue  # a pixel episode recorded without its positions: nothing to draw it on
+            path = rec.states if drawn_task == rec.task else rec.privileged
             learnt, hidden = model_traces(model, rec.states) if rec.task == task else (None, None)
-            oracle_h = oracle_traces(rec.task, rec.states)[1]
+            oracle_h = oracle_traces(rec.task, path)[1]
             where = f"episode {episode}" + (f" of {source}" if source.strip("/") else "")
             rewards = {"served" + (f" ({', '.join(rec.served_by)})" if rec.served_by else ""): rec.served,
                        f"oracle ({'recorded' if rec.oracle_recorded else 'computed'})": rec.oracle,
                        f"this model ({name})": learnt}
             file = out / f"episode_{source.strip('/').replace('/', '_') or 'root'}_{episode}.png"
             figures.append(Figure("Recorded episodes", plots.trace_figure(
-                rec.task, f"{rec.task}, {where}", rec.states, rewards, hidden, oracle_h, file),
+                drawn_task, f"{rec.task}, {where}", path, rewards, hidden, oracle_h, file),
                 f"{where}: {len(rec.states)} steps; served reward "
                 f"{'recorded' if rec.served is not None else 'not recorded'}."))
 

@@ -70,10 +70,12 @@ def _with_prefix(prefix: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.concatenate([head, points[:, None, :]], axis=1)
 
 
-def learnt_reward_map(model, prefix: np.ndarray, n: int = 41, task: str | None = None) -> np.ndarray:
-    """The model's r'_t over `task`'s grid after consuming `prefix` (t, d): (n, n)."""
+def learnt_reward_map(model, prefix: np.ndarray, n: int = 41, task: str | None = None,
+                      inputs=None) -> np.ndarray:
+    """The model's r'_t over `task`'s grid after consuming `prefix` (t, d): (n, n); inputs: what
+    the model reads of the states (`model_traces`; None: the states)."""
     _, _, points = grid(n, task)
-    rewards, _ = model_traces(model, _with_prefix(np.asarray(prefix, np.float32), points))
+    rewards, _ = model_traces(model, _with_prefix(np.asarray(prefix, np.float32), points), inputs=inputs)
     return rewards[:, -1].reshape(n, n)
 
 
