@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -331,6 +332,13 @@ def test_people_label_an_imported_lerobot_dataset_on_the_page(ros_domain, tmp_pa
         assert [e["episode"] for e in queue["episodes"]] == [0, 1, 2]
         info = json.loads(urllib.request.urlopen(f"{base}/api/info?token={token}", timeout=10).read())
         assert info["instruction"] == "push the block to the line"  # the dataset's task text
+        # frames travel on their own topic: they may arrive after the episode is offered (the
+        # page asks again while its final step's frame is missing)
+        deadline = time.monotonic() + 10
+        while 3 not in json.loads(urllib.request.urlopen(f"{base}/api/episode/1?token={token}",
+                                                         timeout=10).read())["frames"]:
+            assert time.monotonic() < deadline, "episode 1's frame 3 never arrived"
+            time.sleep(0.2)
         frame = urllib.request.urlopen(f"{base}/api/episode/1/frame/3?token={token}", timeout=10)
         assert frame.headers["Content-Type"] == "image/jpeg" and len(frame.read()) > 100
         request = urllib.request.Request(f"{base}/api/label", data=json.dumps({"episode": 1, "return": 4.0}).encode(),

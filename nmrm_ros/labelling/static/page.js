@@ -81,6 +81,17 @@ function drawStates(svg, ep, at) {
   svg.appendChild(cursor);
 }
 
+// Frames travel on a topic of their own and may arrive after their episode is offered: while some
+// of an episode's frames are there but not its final step's, ask again (every 0.5 s, up to 10 s)
+// and redraw.
+async function awaitFrames(ep, redraw) {
+  for (let i = 0; i < 20 && ep.frames.length && ep.frames[ep.frames.length - 1] < ep.length; i++) {
+    await new Promise((resolve) => setTimeout(resolve, 500));
+    try { ep.frames = (await api(`/api/episode/${ep.episode}`)).frames; } catch (e) { return; }
+    redraw();
+  }
+}
+
 // An episode with rendered frames plays them as a video: the frame of the latest step <= the one shown.
 function drawFrame(img, ep, at) {
   const steps = ep ? ep.frames : [];
@@ -143,6 +154,7 @@ async function openEpisode(episode) {
   scrub.max = current.length;
   document.getElementById("return").value = current.label === null ? "" : current.label;
   drawEpisode();
+  awaitFrames(current, drawEpisode);
   refresh(false);
 }
 
@@ -348,6 +360,8 @@ async function openPair(a, b, why) {
   document.getElementById("title-b").textContent = `episode ${b} (${eb.length} steps)`;
   pairFrame = 0;
   drawPair();
+  awaitFrames(ea, drawPair);
+  awaitFrames(eb, drawPair);
   playPair();
 }
 
