@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # The test command: set up the venv if needed (scripts/setup_env.sh), then run pytest.
-# Extra arguments go to pytest, e.g. `bash scripts/test.sh -k messages -x`.
+# Extra arguments go to pytest, e.g. `bash scripts/test.sh -k messages -x`. The tests run on two
+# workers (pytest-xdist; most of a ROS test's time is waiting on other processes):
+# NMRM_TEST_WORKERS=N for N, 0 to run them in this process.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 # the browser of the labelling page's test: Debian's Chromium (Playwright drives it; it downloads
@@ -21,4 +23,4 @@ if [ -f "$KIT" ]; then bash "$KIT" "${NMRM_VENV:-$ROOT/.venv}"; else echo "[test
 if [ -n "${CHROMIUM_JOB:-}" ]; then wait "$CHROMIUM_JOB" || echo "[test] could not install chromium: the browser test will skip"; fi
 source "$ROOT/scripts/ros_env.sh"
 cd "$ROOT"
-exec "$NMRM_VENV/bin/python" -m pytest "$@"
+exec "$NMRM_VENV/bin/python" -m pytest -n "${NMRM_TEST_WORKERS:-2}" "$@"

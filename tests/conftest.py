@@ -16,17 +16,41 @@ use_discovery_profile()  # the in-process rclpy nodes and the ros2 CLI discover 
 
 REPO = Path(__file__).resolve().parents[1]
 _domain_counter = itertools.count()
+_BASE_DOMAIN = int(os.environ.get("ROS_DOMAIN_ID", "0"))  # the run's (scripts/ros_env.sh: random per run)
+
+
+def _worker() -> tuple[int, int]:
+    """(this pytest-xdist worker's index, the number of workers); (0, 1) in a run without workers."""
+    name = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    return int(name[2:]), max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+
+
+def _domains() -> range:
+    """The DDS domains this process's tests may use: 1..200, split evenly between the workers of a
+    parallel run (`scripts/test.sh` runs two), so that two tests running at once never share one."""
+    index, count = _worker()
+    span = 200 // count
+    return range(1 + index * span, 1 + (index + 1) * span)
+
+
+@pytest.fixture(autouse=True)
+def _worker_domain(monkeypatch) -> None:
+    """In a parallel run, a test that does not ask for `ros_domain` still talks in its worker's own
+    domains (the first of them), never in another worker's."""
+    if _worker()[1] > 1:
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(_domains()[0]))
 
 
 @pytest.fixture
 def ros_domain(monkeypatch) -> int:
-    """A ROS_DOMAIN_ID for this test alone (derived from the run's base id and the pid).
+    """A ROS_DOMAIN_ID for this test alone (derived from the run's base id and the pid, within the
+    worker's own domains).
 
     Set in os.environ, so the in-process rclpy context and every subprocess started after it use
     it. Domains 0..232 are valid for Fast DDS; we stay in 1..200.
     """
-    base = int(os.environ.get("ROS_DOMAIN_ID", "0"))
-    domain = 1 + (base * 7 + os.getpid() + next(_domain_counter) * 13) % 200
+    domains = _domains()
+    domain = domains[(_BASE_DOMAIN * 7 + os.getpid() + next(_domain_counter) * 13) % len(domains)]
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"))
     return domain

@@ -102,8 +102,11 @@ def test_graph_across_two_hosts_with_multicast_discovery(ros_domain, lan_hosts, 
     before = _shm_segments()
     _run_split_graph(lan_hosts, _env(), tmp_path / "bag")
     # no shared-memory transport: every message went over UDP, and between namespaces UDP can
-    # only cross the veth link
-    assert _shm_segments() <= before
+    # only cross the veth link. /dev/shm is the machine's: where tests run beside this one
+    # (scripts/test.sh runs two workers), their processes add segments too, so only the link's
+    # bytes say it then.
+    if os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") == "1":
+        assert _shm_segments() <= before
     assert _link_bytes(lan_hosts.robot, lan_hosts.robot_link) > 200_000
 
 
