@@ -383,3 +383,89 @@ def test_explain_draws_a_pixel_models_views_at_the_positions_behind_its_images(k
     path = Run.of(cam.eval(), task).save(tmp_path / "cam")
     with pytest.raises(ValueError, match="only the pixel navigation tasks"):
         explain(path, tmp_path / "cam_views", n=4)
+
+
+@pytest.fixture
+def encoder_module(camera_module, tmp_path):
+    """A user's image encoder (a conv layer and an FC layer to 6 features) and its weights file."""
+    import importlib
+    import textwrap
+
+    (tmp_path / "my_encoder.py").write_text(textwrap.dedent('''
+        import torch
+
+        class Encoder(torch.nn.Module):
+            def __init__(self):
+                super().__init__()
+                self.conv = torch.nn.Conv2d(3, 4, 4, stride=4)
+                self.out = torch.nn.Linear(4 * 4 * 4, 6)
+            def forward(self, x):
+                return self.out(torch.relu(self.conv(x)).flatten(1))
+
+        def broken():
+            raise RuntimeError("no GPU here")
+    '''))
+    module = importlib.import_module("my_encoder")
+    torch.manual_seed(0)
+    encoder = module.Encoder()
+    torch.save(encoder.state_dict(), tmp_path / "enc.pt")
+    torch.save({"x": torch.zeros(2)}, tmp_path / "other.pt")
+    yield encoder.eval()
+    import sys
+
+    sys.modules.pop("my_encoder", None)
+
+
+def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module, tmp_path):
+    """encoder=<module>:<attribute>,encoder_weights=<file>: the image's part of the state is the
+    frozen encoder's features of each frame (computed as the env steps), so datasets, models and
+    agents see a vector."""
+    from nmrm_ros.datasets.return_screening import screen_by_return
+    from nmrm_ros.oracles import make_oracle
+
+    camera = "camera_room:CameraRoom,max_steps=20,image=16x16,privileged=pose"
+    task = f"{camera},encoder=my_encoder:Encoder,encoder_weights={tmp_path / 'enc.pt'}"
+    info = task_info(task)
+    assert (info.image_shape, info.state_size, info.privileged_size) == ((), 6, 2)
+    obs, first = make_env(task).reset(seed=0)
+    image = make_env(camera).reset(seed=0)[0].reshape(16, 16, 3)
+    with torch.no_grad():
+        expected = encoder_module(torch.from_numpy(image).permute(2, 0, 1)[None].float() / 255).reshape(-1)
+    np.testing.assert_allclose(obs, expected.numpy(), rtol=1e-5, atol=1e-6)
+    assert first["privileged"].shape == (2,)
+    mixed = task_info(f"camera_room:CameraRoom,with_vector=true,max_steps=20,privileged=pose,"
+                      f"encoder=my_encoder:Encoder,image=16x16")
+    assert mixed.state_size == 6 + 1 and mixed.image_shape == ()
+    ds = screen_by_return(task, make_oracle(task, "camera_room:oracle"), 40, pool_size=80, seed=1)
+    assert ds.states.shape[-1] == 6 and ds.privileged.shape == (40, 20, 2)
+    run = fit(ds, "csc_lstm", load_train_config(task, max_epochs=1, threads=1), progress=False)
+    assert run.model.config.image_shape == () and run.model.config.input_size == 6
+
+
+@pytest.mark.parametrize("tail, message", [
+    ("encoder=my_encoder:Nope", "'my_encoder' has no 'Nope'"),
+    ("encoder=no_such_module_here:E", "cannot import 'no_such_module_here'"),
+    ("encoder=my_encoder:broken", "building it failed: RuntimeError: no GPU here"),
+    ("encoder=my_encoder:Encoder,encoder_weights={tmp}/missing.pt", "cannot read encoder_weights"),
+    ("encoder=my_encoder:Encoder,encoder_weights={tmp}/other.pt", "do not fit it"),
+    ("encoder=my_encoder", "encoder must be <module>:<attribute>"),
+    ("encoder_weights={tmp}/enc.pt", "encoder_weights without encoder"),
+])
+def test_a_frozen_encoder_that_does_not_load_is_a_one_line_error(encoder_module, tmp_path, tail, message):
+    import subprocess
+    import sys
+
+    task = f"camera_room:CameraRoom,max_steps=20,image=16x16,{tail.format(tmp=tmp_path)}"
+    with pytest.raises(ValueError, match=message):
+        task_info(task)
+    if "missing.pt" in tail:  # at the command line: one line, exit code 2
+        import os
+
+        env = dict(os.environ, PYTHONPATH=str(tmp_path))
+        result = subprocess.run([sys.executable, "-m", "nmrm_ros.cli", "dataset", "generate", "--task", task,
+                                 "--oracle", "camera_room:oracle", "--episodes", "4", "--out", str(tmp_path / "bag")],
+                                capture_output=True, text=True, timeout=120, env=env)
+        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+        assert "cannot read encoder_weights" in result.stderr
+    with pytest.raises(ValueError, match="holds no image"):
+        task_info("gym:CartPole-v1,encoder=my_encoder:Encoder")

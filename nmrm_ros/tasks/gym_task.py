@@ -19,6 +19,9 @@ the state dimensions the labelling page draws as a 2D path (e.g. a robot's posit
 `image=HxW` resizes the observation's images to H x W pixels (bilinear). `privileged=<key>` names
 the entry of the env's `info` that is its privileged state (e.g. the simulator's true positions
 behind a camera image): the oracle labels and judges with it, a model and an agent never see it.
+`encoder=<module>:<attribute>[,encoder_weights=<path>]` puts a user's own image encoder, frozen, in
+front of the state: the image's part of the state is then its features, computed once per frame
+(`nmrm_ros.tasks.frozen_encoder`), and the task is a vector task.
 
 What the package sees of the environment (`GymTaskEnv`):
 - the state: the observation flattened to a float32 vector (`gymnasium.spaces.flatten`: a Box
@@ -70,6 +73,8 @@ class TaskSpec:
     xy: tuple | None = None  # state dimensions the labelling page draws as a 2D path
     image: tuple | None = None  # (H, W) the observation's images are resized to
     privileged: str | None = None  # the info entry that is the privileged state
+    encoder: str | None = None  # <module>:<attribute> of a frozen image encoder (frozen_encoder)
+    encoder_weights: str | None = None  # the state dict it loads
 
 
 def parse_task_spec(text: str) -> TaskSpec:
@@ -100,7 +105,14 @@ def parse_task_spec(text: str) -> TaskSpec:
     privileged = kwargs.pop("privileged", None)
     if privileged is not None and (not isinstance(privileged, str) or not privileged):
         raise TaskSpecError(f"task {text!r}: privileged must name an entry of the env's info, got {privileged!r}")
-    extra = {"image": image, "privileged": privileged}
+    encoder, encoder_weights = kwargs.pop("encoder", None), kwargs.pop("encoder_weights", None)
+    if encoder is not None and (not isinstance(encoder, str) or ":" not in encoder):
+        raise TaskSpecError(f"task {text!r}: encoder must be <module>:<attribute> of an image encoder, got {encoder!r}")
+    if encoder_weights is not None and encoder is None:
+        raise TaskSpecError(f"task {text!r}: encoder_weights without encoder=<module>:<attribute>")
+    if encoder_weights is not None and (not isinstance(encoder_weights, str) or not encoder_weights):
+        raise TaskSpecError(f"task {text!r}: encoder_weights must be a file's path, got {encoder_weights!r}")
+    extra = {"image": image, "privileged": privileged, "encoder": encoder, "encoder_weights": encoder_weights}
     if head.startswith(LEROBOT_PREFIX):
         target = head[len(LEROBOT_PREFIX):]
         for pair in pairs:  # feature names as written (not YAML: state=true is the feature "true")
@@ -109,7 +121,8 @@ def parse_task_spec(text: str) -> TaskSpec:
                 kwargs[key.strip()] = value.strip()
         unknown = sorted(set(kwargs) - {"state", "action"}) + [k for k, v in (("max_steps", max_steps),
                                                                               ("image", image),
-                                                                              ("privileged", privileged)) if v]
+                                                                              ("privileged", privileged),
+                                                                              ("encoder", encoder)) if v]
         if not target:
             raise TaskSpecError(f"task {text!r}: give a LeRobot dataset's directory after lerobot:")
         if unknown:
@@ -225,6 +238,9 @@ def observation_layout(space: gym.Space, spec: TaskSpec) -> ObservationLayout:
         if spec.image is not None:
             raise TaskSpecError(f"task {spec.text!r}: image={spec.image[0]}x{spec.image[1]} but the observation "
                                 f"space {space} holds no image (a uint8 Box H x W x C)")
+        if spec.encoder is not None:
+            raise TaskSpecError(f"task {spec.text!r}: encoder={spec.encoder} but the observation space {space} "
+                                f"holds no image (a uint8 Box H x W x C)")
         return ObservationLayout(None, (), 0, space)
     sizes = {tuple(s.shape[:2]) for s in entries.values()}
     if spec.image is None and len(sizes) > 1:
@@ -291,6 +307,13 @@ class GymTaskEnv(gym.Wrapper):
         self.layout = observation_layout(self._source_space, spec)
         self.image_shape = self.layout.image_shape
         size = self.layout.state_size()
+        self.encoder = None
+        if spec.encoder is not None:  # the image's part of the state: its features (a vector task)
+            from .frozen_encoder import FrozenEncoder
+
+            self.encoder = FrozenEncoder(spec.encoder, spec.encoder_weights, self.image_shape, spec.text)
+            size += self.encoder.size - int(np.prod(self.image_shape))
+            self.image_shape = ()
         if spec.xy is not None and max(spec.xy) >= size:
             raise TaskSpecError(f"task {spec.text!r}: xy={spec.xy[0]}/{spec.xy[1]} but the state has "
                                 f"{size} dimensions (0..{size - 1})")
@@ -302,7 +325,8 @@ class GymTaskEnv(gym.Wrapper):
         if layout.images is None:
             return np.asarray(gym.spaces.flatten(self._source_space, obs), dtype=np.float32).reshape(-1)
         images = [obs] if layout.images == () else [obs[k] for k in layout.images]
-        parts = [np.concatenate([resize_image(im, layout.size) for im in images], axis=-1).reshape(-1)]
+        image = np.concatenate([resize_image(im, layout.size) for im in images], axis=-1)
+        parts = [image.reshape(-1) if self.encoder is None else self.encoder(image)]
         if layout.rest is not None:
             parts.append(gym.spaces.flatten(layout.rest, {k: obs[k] for k in layout.rest.spaces}))
         return np.concatenate(parts).astype(np.float32)
