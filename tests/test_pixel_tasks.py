@@ -433,8 +433,8 @@ def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module
         expected = encoder_module(torch.from_numpy(image).permute(2, 0, 1)[None].float() / 255).reshape(-1)
     np.testing.assert_allclose(obs, expected.numpy(), rtol=1e-5, atol=1e-6)
     assert first["privileged"].shape == (2,)
-    mixed = task_info(f"camera_room:CameraRoom,with_vector=true,max_steps=20,privileged=pose,"
-                      f"encoder=my_encoder:Encoder,image=16x16")
+    mixed = task_info("camera_room:CameraRoom,with_vector=true,max_steps=20,privileged=pose,"
+                      "encoder=my_encoder:Encoder,image=16x16")
     assert mixed.state_size == 6 + 1 and mixed.image_shape == ()
     ds = screen_by_return(task, make_oracle(task, "camera_room:oracle"), 40, pool_size=80, seed=1)
     assert ds.states.shape[-1] == 6 and ds.privileged.shape == (40, 20, 2)
