@@ -23,4 +23,9 @@ if [ -f "$KIT" ]; then bash "$KIT" "${NMRM_VENV:-$ROOT/.venv}"; else echo "[test
 if [ -n "${CHROMIUM_JOB:-}" ]; then wait "$CHROMIUM_JOB" || echo "[test] could not install chromium: the browser test will skip"; fi
 source "$ROOT/scripts/ros_env.sh"
 cd "$ROOT"
-exec "$NMRM_VENV/bin/python" -m pytest -n "${NMRM_TEST_WORKERS:-2}" "$@"
+# workers, unless the arguments choose (-n) or need one process (--pdb, --trace, -s)
+WORKERS=(-n "${NMRM_TEST_WORKERS:-2}")
+for arg in "$@"; do
+  case "$arg" in -n|-n*|--numprocesses*|--pdb|--trace|-s|--capture=no) WORKERS=() ;; esac
+done
+exec "$NMRM_VENV/bin/python" -m pytest "${WORKERS[@]}" "$@"

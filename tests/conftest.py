@@ -26,19 +26,22 @@ def _worker() -> tuple[int, int]:
 
 
 def _domains() -> range:
-    """The DDS domains this process's tests may use: 1..200, split evenly between the workers of a
-    parallel run (`scripts/test.sh` runs two), so that two tests running at once never share one."""
+    """The DDS domains this process's tests may use: 1..100 (ROS 2's safe range on Linux: higher
+    domains' ports reach the ephemeral range), split evenly between the workers of a parallel run
+    (`scripts/test.sh` runs two), so that two tests running at once never share one."""
     index, count = _worker()
-    span = 200 // count
+    span = 100 // count
     return range(1 + index * span, 1 + (index + 1) * span)
 
 
 @pytest.fixture(autouse=True)
 def _worker_domain(monkeypatch) -> None:
     """In a parallel run, a test that does not ask for `ros_domain` still talks in its worker's own
-    domains (the first of them), never in another worker's."""
+    domains (one chosen by the run's random base, as a run without workers uses the base itself, so
+    that two runs on one machine seldom meet), never in another worker's."""
     if _worker()[1] > 1:
-        monkeypatch.setenv("ROS_DOMAIN_ID", str(_domains()[0]))
+        domains = _domains()
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(domains[_BASE_DOMAIN % len(domains)]))
 
 
 @pytest.fixture
@@ -47,7 +50,7 @@ def ros_domain(monkeypatch) -> int:
     worker's own domains).
 
     Set in os.environ, so the in-process rclpy context and every subprocess started after it use
-    it. Domains 0..232 are valid for Fast DDS; we stay in 1..200.
+    it. Domains 0..232 are valid for Fast DDS; we stay in 1..100 (`_domains`).
     """
     domains = _domains()
     domain = domains[(_BASE_DOMAIN * 7 + os.getpid() + next(_domain_counter) * 13) % len(domains)]

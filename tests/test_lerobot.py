@@ -335,7 +335,7 @@ def test_people_label_an_imported_lerobot_dataset_on_the_page(ros_domain, tmp_pa
         # frames travel on their own topic: they may arrive after the episode is offered (the
         # page asks again while its final step's frame is missing)
         deadline = time.monotonic() + 10
-        while 3 not in json.loads(urllib.request.urlopen(f"{base}/api/episode/1?token={token}",
+        while 3 not in json.loads(urllib.request.urlopen(f"{base}/api/episode/1/frames?token={token}",
                                                          timeout=10).read())["frames"]:
             assert time.monotonic() < deadline, "episode 1's frame 3 never arrived"
             time.sleep(0.2)

@@ -404,7 +404,12 @@ def encoder_module(camera_module, tmp_path):
 
         def broken():
             raise RuntimeError("no GPU here")
+
+        class Normalising(Encoder):
+            def forward(self, x):  # each image standardised: a uniform image has no features
+                return super().forward((x - x.mean()) / x.std())
     '''))
+    (tmp_path / "raising_encoder.py").write_text("raise ValueError('needs a licence key')\n")
     module = importlib.import_module("my_encoder")
     torch.manual_seed(0)
     encoder = module.Encoder()
@@ -436,6 +441,12 @@ def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module
     mixed = task_info("camera_room:CameraRoom,with_vector=true,max_steps=20,privileged=pose,"
                       "encoder=my_encoder:Encoder,image=16x16")
     assert mixed.state_size == 6 + 1 and mixed.image_shape == ()
+    # without weights: the same (seed 0) random module in every env and process; a module that
+    # standardises each image is fine (its size is probed on noise, not on a uniform image)
+    bare = f"{camera},encoder=my_encoder:Normalising"
+    first, second = make_env(bare).reset(seed=0)[0], make_env(bare).reset(seed=0)[0]
+    np.testing.assert_array_equal(first, second)
+    assert task_info(bare).state_size == 6
     ds = screen_by_return(task, make_oracle(task, "camera_room:oracle"), 40, pool_size=80, seed=1)
     assert ds.states.shape[-1] == 6 and ds.privileged.shape == (40, 20, 2)
     run = fit(ds, "csc_lstm", load_train_config(task, max_epochs=1, threads=1), progress=False)
@@ -449,6 +460,7 @@ def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module
     ("encoder=my_encoder:Encoder,encoder_weights={tmp}/missing.pt", "cannot read encoder_weights"),
     ("encoder=my_encoder:Encoder,encoder_weights={tmp}/other.pt", "do not fit it"),
     ("encoder=my_encoder", "encoder must be <module>:<attribute>"),
+    ("encoder=raising_encoder:E", "cannot import 'raising_encoder' \\(ValueError: needs a licence key\\)"),
     ("encoder_weights={tmp}/enc.pt", "encoder_weights without encoder"),
 ])
 def test_a_frozen_encoder_that_does_not_load_is_a_one_line_error(encoder_module, tmp_path, tail, message):

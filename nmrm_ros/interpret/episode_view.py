@@ -44,6 +44,15 @@ def _source(topic: str) -> str:
         return ""
 
 
+def _judges_privileged(task: str, privileged: np.ndarray | None) -> bool:
+    """Whether `task`'s oracle judges the privileged state recorded (its size is the task's)."""
+    if privileged is None:
+        return False
+    from ..tasks import task_info
+
+    return task_info(task).privileged_size == privileged.shape[-1] > 0
+
+
 def read_episodes(bag: str | Path) -> dict:
     """Every complete episode of a bag, keyed (source, episode), in recorded order."""
     obs, served, oracle = defaultdict(dict), defaultdict(dict), defaultdict(dict)
@@ -64,14 +73,16 @@ def read_episodes(bag: str | Path) -> dict:
         if sorted(steps) != list(range(last + 1)) or last == 0:
             continue
         states = np.array([list(steps[t].state) for t in range(last)], np.float32)
+        sizes = {len(getattr(steps[t], "privileged", ())) for t in range(last)}
         privileged = (np.array([list(steps[t].privileged) for t in range(last)], np.float32)
-                      if all(len(getattr(steps[t], "privileged", ())) for t in range(last)) else None)
+                      if len(sizes) == 1 and 0 not in sizes else None)
         have_served = all(t in served[key] for t in range(last))
         have_oracle = all(t in oracle[key] for t in range(last))
         if have_oracle:
             rewards = np.array([oracle[key][t].reward for t in range(last)], np.float64)
         else:
-            rewards = oracle_traces(task[key], states if privileged is None else privileged)[0]
+            rewards = oracle_traces(task[key], privileged if _judges_privileged(task[key], privileged)
+                                    else states)[0]
         episodes[key] = EpisodeRecord(
             task[key], states,
             np.array([served[key][t].reward for t in range(last)], np.float64) if have_served else None,

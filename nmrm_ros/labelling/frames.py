@@ -27,6 +27,11 @@ class FrameStore:
                 self.bytes -= sum(len(d) for _, d in gone.values())
                 self.dropped_episodes += 1
 
+    def any(self) -> bool:
+        """Whether any episode has a frame (the graph renders: every episode's frames will come)."""
+        with self._lock:
+            return bool(self._episodes)
+
     def steps(self, episode: int) -> list:
         """The steps of `episode` that have a frame, in order."""
         with self._lock:

@@ -9,6 +9,7 @@ Routes (JSON unless said; every one behind the access token when there is one):
   GET  /api/episode/{n}       one episode's states (L + 1, state size), the steps that have a
                               rendered frame, and its label if any
   GET  /api/episode/{n}/frame/{t}  the frame of step t (image/jpeg or image/png)
+  GET  /api/episode/{n}/frames     the steps that have a frame so far (takes nothing)
   POST /api/label             {"episode": n, "return": x}: label (again: a correction)
   POST /api/skip              {"episode": n}
   GET  /api/labels            this session's labels of the person asking, newest first
@@ -171,7 +172,14 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
                                   # an image state's pixels are seen as its frames, not plotted
                                   "states": ep.states[:, image_values:].astype(float).round(5).tolist(),
                                   "frames": frames.steps(ep.episode) if frames is not None else [],
+                                  "frames_expected": frames is not None and frames.any(),
                                   "label": None if label is None else label.value})
+
+    async def api_frames(request: web.Request) -> web.Response:
+        """The steps of an episode that have a frame so far (the page asks again while frames are
+        still arriving; unlike /api/episode/{n}, this takes nothing)."""
+        episode = int(request.match_info["episode"])
+        return web.json_response({"episode": episode, "frames": frames.steps(episode) if frames is not None else []})
 
     async def api_frame(request: web.Request) -> web.Response:
         episode, step = int(request.match_info["episode"]), int(request.match_info["step"])
@@ -280,6 +288,7 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
                     web.get("/api/info", api_info), web.get("/api/queue", api_queue),
                     web.get(r"/api/episode/{episode:\d+}", api_episode),
                     web.get(r"/api/episode/{episode:\d+}/frame/{step:\d+}", api_frame),
+                    web.get(r"/api/episode/{episode:\d+}/frames", api_frames),
                     web.post("/api/label", api_label), web.post("/api/skip", api_skip),
                     web.get("/api/labels", api_labels), web.get("/api/team", api_team),
                     web.get("/api/pairs", api_pairs), web.post("/api/compare", api_compare),

@@ -3,8 +3,9 @@
     gym:CarRacing-v3,image=64x64,encoder=my_vision:make_encoder,encoder_weights=/abs/enc.pt
 
 `encoder=<module>:<attribute>` names a `torch.nn.Module`, a module class, or a factory returning
-one (called without arguments); `encoder_weights=<path>` (optional) is a state dict the module
-loads (`torch.load(..., weights_only=True)`). The module is put in eval mode and never trained.
+one (called without arguments, torch's generator seeded 0 meanwhile, so that a module without
+weights is the same random one in every process); `encoder_weights=<path>` (optional) is a state
+dict the module loads (`torch.load(..., weights_only=True)`). The module is put in eval mode and never trained.
 It reads the observation's image (resized and stacked as without an encoder:
 `gym_task.ObservationLayout`) as a float32 tensor (1, C, H, W) with values in 0..1 — the
 torchvision convention — and its output, flattened, is the image's part of the state: the state is
@@ -41,15 +42,19 @@ class FrozenEncoder:
         if not module_name or not attribute:
             raise TaskSpecError(f"task {task!r}: encoder must be <module>:<attribute>, got {target!r}")
         try:
-            obj = getattr(importlib.import_module(module_name), attribute)
-        except ImportError as exc:
-            raise self._error(f"cannot import {module_name!r} ({exc})") from None
+            imported = importlib.import_module(module_name)
+        except Exception as exc:  # noqa: BLE001 - the user's module (a syntax error, a raise): one line
+            raise self._error(f"cannot import {module_name!r} ({type(exc).__name__}: {_line(exc)})") from None
+        try:
+            obj = getattr(imported, attribute)
         except AttributeError:
             raise self._error(f"{module_name!r} has no {attribute!r}") from None
         try:
-            module = obj if isinstance(obj, torch.nn.Module) else obj()
+            with torch.random.fork_rng(devices=[]):  # its initial weights: seed 0, the caller's stream untouched
+                torch.manual_seed(0)
+                module = obj if isinstance(obj, torch.nn.Module) else obj()
         except Exception as exc:  # noqa: BLE001 - the user's code: one line
-            raise self._error(f"building it failed: {type(exc).__name__}: {exc}") from None
+            raise self._error(f"building it failed: {type(exc).__name__}: {_line(exc)}") from None
         if not isinstance(module, torch.nn.Module):
             raise self._error(f"it gave a {type(module).__name__}, not a torch.nn.Module")
         self.sha256 = ""
@@ -62,11 +67,13 @@ class FrozenEncoder:
             except OSError as exc:
                 raise self._error(f"cannot read encoder_weights {path}: {exc.strerror or exc}") from None
             except Exception as exc:  # noqa: BLE001 - a wrong or broken file: one line
-                why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                raise self._error(f"encoder_weights {path} do not fit it: {why}") from None
+                raise self._error(f"encoder_weights {path} do not fit it: {_line(exc)}") from None
         self.module = module.eval().requires_grad_(False)
         self.image_shape = tuple(int(v) for v in image_shape)
-        self.size = int(self(np.zeros(self.image_shape, np.uint8)).size)
+        # its size, from a noise image (an encoder that normalises each image has no features of a
+        # uniform one)
+        probe = np.random.default_rng(0).integers(0, 256, self.image_shape, dtype=np.uint8)
+        self.size = int(self(probe).size)
         if self.size < 1:
             raise self._error("it gave no features")
 
@@ -81,7 +88,14 @@ class FrozenEncoder:
             features = np.asarray(y.detach().reshape(-1).numpy(), dtype=np.float32)
         except Exception as exc:  # noqa: BLE001 - the user's module: one line
             raise self._error(f"it failed on a (1, {x.shape[1]}, {x.shape[2]}, {x.shape[3]}) image: "
-                              f"{type(exc).__name__}: {exc}") from None
+                              f"{type(exc).__name__}: {_line(exc)}") from None
         if not np.all(np.isfinite(features)):
             raise self._error("its features hold NaN or inf")
         return features
+
+
+def _line(exc: BaseException, limit: int = 300) -> str:
+    """An exception's message on one line (a state dict's missing and unexpected keys included),
+    at most `limit` characters."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= limit else text[:limit - 3] + "..."

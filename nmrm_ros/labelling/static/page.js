@@ -81,13 +81,14 @@ function drawStates(svg, ep, at) {
   svg.appendChild(cursor);
 }
 
-// Frames travel on a topic of their own and may arrive after their episode is offered: while some
-// of an episode's frames are there but not its final step's, ask again (every 0.5 s, up to 10 s)
-// and redraw.
+// Frames travel on a topic of their own and may arrive after their episode is offered: while the
+// graph renders (frames_expected) and the episode's final step has no frame yet, ask again for its
+// frames (every 0.5 s, up to 10 s; /frames takes nothing) and redraw.
 async function awaitFrames(ep, redraw) {
-  for (let i = 0; i < 20 && ep.frames.length && ep.frames[ep.frames.length - 1] < ep.length; i++) {
+  const missing = () => ep.frames_expected && (!ep.frames.length || ep.frames[ep.frames.length - 1] < ep.length);
+  for (let i = 0; i < 20 && missing(); i++) {
     await new Promise((resolve) => setTimeout(resolve, 500));
-    try { ep.frames = (await api(`/api/episode/${ep.episode}`)).frames; } catch (e) { return; }
+    try { ep.frames = (await api(`/api/episode/${ep.episode}/frames`)).frames; } catch (e) { return; }
     redraw();
   }
 }
