@@ -27,20 +27,23 @@ from pathlib import Path
 import numpy as np
 
 
+class EncoderError(ValueError):
+    """An encoder that does not load or run (one line, says why; `gym_task` raises it as a
+    TaskSpecError)."""
+
+
 class FrozenEncoder:
     """`encoder(image)`: an image (H, W, C) uint8 -> its features (F,) float32, by the user's
     module `target` (with `weights`, if given), frozen. `size` is F; `sha256` the weights file's
-    (or ""). Every failure to load or to run it is a `gym_task.TaskSpecError` (one line)."""
+    (or ""). Every failure to load or to run it is an `EncoderError` (one line)."""
 
     def __init__(self, target: str, weights: str | None, image_shape: tuple, task: str) -> None:
         import torch
 
-        from .gym_task import TaskSpecError
-
-        self._error = lambda why: TaskSpecError(f"task {task!r}: encoder={target}: {why}")
+        self._error = lambda why: EncoderError(f"task {task!r}: encoder={target}: {why}")
         module_name, _, attribute = str(target).partition(":")
         if not module_name or not attribute:
-            raise TaskSpecError(f"task {task!r}: encoder must be <module>:<attribute>, got {target!r}")
+            raise EncoderError(f"task {task!r}: encoder must be <module>:<attribute>, got {target!r}")
         try:
             imported = importlib.import_module(module_name)
         except Exception as exc:  # noqa: BLE001 - the user's module (a syntax error, a raise): one line

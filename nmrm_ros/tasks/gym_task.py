@@ -309,9 +309,12 @@ class GymTaskEnv(gym.Wrapper):
         size = self.layout.state_size()
         self.encoder = None
         if spec.encoder is not None:  # the image's part of the state: its features (a vector task)
-            from .frozen_encoder import FrozenEncoder
+            from .frozen_encoder import EncoderError, FrozenEncoder
 
-            self.encoder = FrozenEncoder(spec.encoder, spec.encoder_weights, self.image_shape, spec.text)
+            try:
+                self.encoder = FrozenEncoder(spec.encoder, spec.encoder_weights, self.image_shape, spec.text)
+            except EncoderError as exc:
+                raise TaskSpecError(str(exc)) from None
             size += self.encoder.size - int(np.prod(self.image_shape))
             self.image_shape = ()
         if spec.xy is not None and max(spec.xy) >= size:
@@ -326,10 +329,19 @@ class GymTaskEnv(gym.Wrapper):
             return np.asarray(gym.spaces.flatten(self._source_space, obs), dtype=np.float32).reshape(-1)
         images = [obs] if layout.images == () else [obs[k] for k in layout.images]
         image = np.concatenate([resize_image(im, layout.size) for im in images], axis=-1)
-        parts = [image.reshape(-1) if self.encoder is None else self.encoder(image)]
+        parts = [image.reshape(-1) if self.encoder is None else self._encode(image)]
         if layout.rest is not None:
             parts.append(gym.spaces.flatten(layout.rest, {k: obs[k] for k in layout.rest.spaces}))
         return np.concatenate(parts).astype(np.float32)
+
+    def _encode(self, image: np.ndarray) -> np.ndarray:
+        """The frozen encoder's features of one image (its failure: a TaskSpecError, one line)."""
+        from .frozen_encoder import EncoderError
+
+        try:
+            return self.encoder(image)
+        except EncoderError as exc:
+            raise TaskSpecError(str(exc)) from None
 
     def _privileged(self, info: dict) -> dict:
         key = self.spec_.privileged
