@@ -339,6 +339,8 @@ def test_people_label_an_imported_lerobot_dataset_on_the_page(ros_domain, tmp_pa
                                                          timeout=10).read())["frames"]:
             assert time.monotonic() < deadline, "episode 1's frame 3 never arrived"
             time.sleep(0.2)
+        with pytest.raises(urllib.error.HTTPError, match="404"):  # no such episode: not an empty list
+            urllib.request.urlopen(f"{base}/api/episode/99/frames?token={token}", timeout=10)
         frame = urllib.request.urlopen(f"{base}/api/episode/1/frame/3?token={token}", timeout=10)
         assert frame.headers["Content-Type"] == "image/jpeg" and len(frame.read()) > 100
         request = urllib.request.Request(f"{base}/api/label", data=json.dumps({"episode": 1, "return": 4.0}).encode(),

@@ -178,7 +178,10 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     async def api_frames(request: web.Request) -> web.Response:
         """The steps of an episode that have a frame so far (the page asks again while frames are
         still arriving; unlike /api/episode/{n}, this takes nothing)."""
-        episode = int(request.match_info["episode"])
+        try:
+            episode = queue.get(int(request.match_info["episode"])).episode
+        except LabelError as exc:
+            return _error(404, str(exc))
         return web.json_response({"episode": episode, "frames": frames.steps(episode) if frames is not None else []})
 
     async def api_frame(request: web.Request) -> web.Response:
