@@ -95,9 +95,8 @@ def test_ensemble_training_is_each_member_trained_alone():
 
 def test_ensemble_checkpoint_and_online_step(tmp_path):
     ds = make_toy_dataset("push_switch", 200, seed=1)
-    cfg = load_train_config("push_switch", max_epochs=2)
-    run = fit(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap",
-                             out=tmp_path / "ens", progress=False)
+    cfg = load_train_config("push_switch", max_epochs=2, keep_members="all")  # 2 epochs: some members not fitted yet
+    run = fit(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap", out=tmp_path / "ens", progress=False)
     meta = json.loads((tmp_path / "ens.json").read_text())
     assert meta["ensemble"]["members"] == 4 and meta["ensemble"]["seeds"] == [0, 1, 2, 3]
     serving = meta["ensemble"]["serving_member"]
@@ -175,11 +174,9 @@ def test_member_offsets_rerun_chosen_repeats_exactly():
     """offsets=[2] trains what member 2 of a 3-member per-member run trained (seed, split, dropout
     masks, result): how bench/reproduce_tables.py --seeds reruns a table's failing repeats."""
     ds = make_toy_dataset("push_switch", 150, seed=2)
-    cfg = load_train_config("push_switch", max_epochs=2, dropout=0.1)
-    full = fit(ds, "csc_lstm", cfg, members=3, split_mode="per_member",
-                              split_seed=4, progress=False)
-    one = fit(ds, "csc_lstm", cfg, members=1, split_mode="per_member",
-                                      split_seed=4, progress=False, offsets=[2])
+    cfg = load_train_config("push_switch", max_epochs=2, dropout=0.1, keep_members="all")
+    full = fit(ds, "csc_lstm", cfg, members=3, split_mode="per_member", split_seed=4, progress=False)
+    one = fit(ds, "csc_lstm", cfg, members=1, split_mode="per_member", split_seed=4, progress=False, offsets=[2])
     assert one.seeds == [2] and one.split_seeds == [6]
     assert one.member_test[0]["return_mse"] == pytest.approx(full.member_test[2]["return_mse"], rel=1e-4)
     with pytest.raises(ValueError, match="2 member offsets for 3 members"):
@@ -190,8 +187,8 @@ def test_keep_members_best_keeps_the_member_best_on_validation(tmp_path):
     from nmrm_ros.mil import load_checkpoint, load_train_config
 
     ds = make_toy_dataset("push_switch", 200, seed=0)
-    everyone = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3), members=3,
-                                  progress=False)
+    everyone = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3, keep_members="all"), members=3,
+                   progress=False)
     cfg = load_train_config("push_switch", max_epochs=3, keep_members="best")
     run = fit(ds, "csc_lstm", cfg, members=3, progress=False, out=tmp_path / "best")
     chosen = int(np.argmin(everyone.train.best_val_loss))
@@ -202,3 +199,60 @@ def test_keep_members_best_keeps_the_member_best_on_validation(tmp_path):
     assert model.members == 1 and meta.ensemble.candidates == 3 and meta.ensemble.chosen == chosen
     with pytest.raises(ValueError, match="keep_members"):
         load_train_config("push_switch", keep_members="worst")
+
+
+def test_fitted_members_leaves_out_only_a_member_that_did_not_fit():
+    """The rule on the unexplained validation variances of measured checkpoints (pipeline.py)."""
+    from nmrm_ros.mil.pipeline import fitted_members
+
+    assert fitted_members([0.999, 0.0015, 0.0004], serving=2) == [1, 2]  # cue corridor, data seed 0
+    assert fitted_members([0.999, 0.999, 0.00007], serving=2) == [2]  # cue corridor, data seed 1
+    assert fitted_members([0.065, 0.0034, 0.0045], serving=1) == [1, 2]  # Charger, data seed 22
+    assert fitted_members([0.0026, 0.00024, 0.0027], serving=1) == [0, 1, 2]  # CartPole: 11x apart, all fit
+    assert fitted_members([0.0074, 0.00055, 0.0038], serving=1) == [0, 1, 2]  # delivery: 13x apart, all under 1%
+    assert fitted_members([0.076, 0.041, 0.036], serving=2) == [0, 1, 2]  # delivery: all over 1%, 2x apart
+    assert fitted_members([1e-5, 2e-5, 0.0], serving=2) == [0, 1, 2]  # MiniGrid: all fit
+    assert fitted_members([0.5, 0.02], serving=0) == [0, 1]  # the serving member stays, whatever it scores
+
+
+def test_unexplained_variance_skips_unlabelled_episodes_and_constant_labels():
+    from nmrm_ros.mil.pipeline import unexplained_variance
+
+    ds = make_toy_dataset("push_switch", 20, seed=0)
+    ds.returns[:] = np.arange(20.0)
+    ds.returns[3] = np.nan
+    val = np.arange(10)
+    labels = np.delete(np.arange(10.0), 3)
+    assert unexplained_variance(ds, val, 2.0) == pytest.approx(2.0 / np.var(labels))
+    ds.returns[:] = 1.0
+    assert unexplained_variance(ds, val, 2.0) == 0.0
+
+
+def test_keep_members_fitted_serves_and_records_the_members_kept(tmp_path, monkeypatch, capsys):
+    """Whatever the rule leaves out: the checkpoint holds the kept members' weights, records the
+    candidates and `kept`, the serving member is the same model, and `nmrm train` says who was left out."""
+    from nmrm_ros.cli.model import _print_run
+    from nmrm_ros.mil import Run, load_train_config
+    from nmrm_ros.mil import pipeline
+
+    ds = make_toy_dataset("push_switch", 200, seed=0)
+    everyone = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=3, keep_members="all"), members=3,
+                   progress=False)
+    serving = int(everyone.model.serving_member)
+    out = (serving + 1) % 3
+    monkeypatch.setattr(pipeline, "fitted_members", lambda u, s: [m for m in range(len(u)) if m != out])
+    cfg = load_train_config("push_switch", max_epochs=3)
+    assert cfg.keep_members == "fitted"  # the default
+    run = fit(ds, "csc_lstm", cfg, members=3, progress=False, out=tmp_path / "fitted")
+    kept = [m for m in range(3) if m != out]
+    assert run.model.members == 2 and run.kept == kept and run.chosen is None
+    assert run.seeds == kept and kept[int(run.model.serving_member)] == serving
+    for (name, mine), full in zip(run.model.params.items(), everyone.model.params.values()):
+        torch.testing.assert_close(mine, full[kept], msg=name)
+    loaded = Run.load(tmp_path / "fitted")
+    assert loaded.kept == kept and loaded.meta.ensemble.candidates == 3
+    assert len(loaded.meta.metrics["candidate_unexplained_variance"]) == 3
+    _print_run(run, cfg)
+    printed = capsys.readouterr().out
+    assert f"left out of the served mean, as it did not fit: member {out} (" in printed
+    assert "3 members in one pass" in printed and f"serving member (hidden state): {serving}" in printed

@@ -50,7 +50,7 @@ def test_cli_generate_info_train_evaluate(tmp_path):
 def test_cli_trains_and_evaluates_an_ensemble(tmp_path):
     """`nmrm train --ensemble 3` on the Key sample bag: per-member report, one checkpoint holding
     all members, and `nmrm evaluate` scores the ensemble mean."""
-    r = nmrm("train", "--bag", BAGS / "key_screened", "--epochs", "2", "--ensemble", "3",
+    r = nmrm("train", "--bag", BAGS / "key_screened", "--epochs", "2", "--ensemble", "3", "--keep-members", "all",
              "--out", tmp_path / "ens")
     assert r.returncode == 0, r.stderr
     assert r.stdout.count("member ") >= 3 and "ensemble mean: test return MSE" in r.stdout
@@ -60,6 +60,10 @@ def test_cli_trains_and_evaluates_an_ensemble(tmp_path):
     r = nmrm("train", "--bag", BAGS / "key_screened", "--ensemble", "2", "--split-mode", "nope",
              "--out", tmp_path / "x")
     assert r.returncode == 2 and "--split-mode must be one of" in r.stderr
+    r = nmrm("train", "--bag", BAGS / "key_screened", "--ensemble", "2", "--keep-members", "worst",
+             "--out", tmp_path / "x")
+    assert r.returncode != 0 and "keep_members" in r.stderr and "fitted or all or best" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "x.pt").exists()
 
 
 def test_cli_repair(tmp_path):
@@ -94,7 +98,7 @@ def test_cli_trains_the_tasks_default_ensemble(tmp_path):
     one model."""
     import json
 
-    r = nmrm("train", "--bag", BAGS / "timer_screened", "--epochs", "1", "--out", tmp_path / "t")
+    r = nmrm("train", "--bag", BAGS / "timer_screened", "--epochs", "1", "--keep-members", "all", "--out", tmp_path / "t")
     assert r.returncode == 0, r.stderr
     assert "3 members in one pass" in r.stdout and "ensemble mean: test return MSE" in r.stdout
     meta = json.loads((tmp_path / "t.json").read_text())

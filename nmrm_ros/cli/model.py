@@ -31,6 +31,9 @@ def train(
     ensemble: int = typer.Option(None, min=1, help="train K models as one ensemble in one pass (seeds SEED..SEED+K-1; "
                                  "served as their mean reward); default: the task's `members` in the config"),
     split_mode: str = typer.Option("shared", help="ensemble splits: shared | bootstrap | per_member"),
+    keep_members: str = typer.Option(None, help="of an ensemble's members, which are served: fitted (all but one "
+                                     "that did not fit: validation 1 - R^2 over 0.01 and over 4x the best member's) "
+                                     "| all | best (only the best on validation); default: the task's config"),
     label_swap: float = typer.Option(None, min=0.0, max=1.0, help="label noise: swap this fraction of the training and "
                                      "validation labels between trajectories (paper Sec. 5.2)"),
     reward_l1: float = typer.Option(None, min=0.0, help="override the weight of the L1 sparsity prior on "
@@ -61,7 +64,8 @@ def train(
         raise typer.BadParameter(f"--split-mode must be one of {', '.join(SPLIT_MODES)}, got {split_mode!r}")
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
                     reward_l1=reward_l1, feedback=feedback, output_activation=output_activation,
-                    fe_sizes=fe_sizes, head_sizes=head_sizes, prefix_fraction=prefix_fraction)
+                    fe_sizes=fe_sizes, head_sizes=head_sizes, prefix_fraction=prefix_fraction,
+                    keep_members=keep_members)
     if task:  # the settings are checked before any data is loaded or generated
         load_train_config(task, config, **settings)
     if bag:
@@ -91,28 +95,39 @@ def train(
 
 
 def _print_run(run, cfg) -> None:
-    """What `nmrm train` prints of a run: the single model's line, or one per member and the mean."""
+    """What `nmrm train` prints of a run: the single model's line, or one per member and the mean;
+    and which candidates were left out (keep_members best / fitted)."""
     t = run.train
+    kept = run.kept or list(range(run.model.members))  # the members' entries in the training record
+    losses = ", ".join(f"{v:.4g}" for v in t.best_val_loss)
+    if run.chosen is not None:
+        typer.echo(f"best of {len(t.best_val_loss)} candidates on validation (losses {losses}): "
+                   f"candidate {run.chosen}, seed {run.seeds[0]}")
     if run.model.members == 1:
-        c = run.chosen or 0  # keep_members best: the kept candidate's entry in the training record
-        if run.chosen is not None:
-            losses = ", ".join(f"{v:.4g}" for v in t.best_val_loss)
-            typer.echo(f"best of {len(t.best_val_loss)} candidates on validation (losses {losses}): "
-                       f"candidate {c}, seed {run.seeds[0]}")
+        c = kept[0]
         typer.echo(f"best epoch {t.best_epochs[c]}/{t.epochs_run} in {t.seconds:.1f} s; "
                    f"test {metrics_line(run.test_metrics)}")
         if t.still_improving[c]:
             typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
     else:
-        typer.echo(f"{run.model.members} members in one pass: {t.epochs_run} epochs in {t.seconds:.1f} s")
+        typer.echo(f"{len(t.best_val_loss)} members in one pass: {t.epochs_run} epochs in {t.seconds:.1f} s")
         for m, test in enumerate(run.member_test):
-            flag = ", still improving at the limit" if t.still_improving[m] else ""
-            typer.echo(f"  member {m} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
-                       f"{t.best_epochs[m]}; test {metrics_line(test)}{flag}")
+            c = kept[m]
+            flag = ", still improving at the limit" if t.still_improving[c] else ""
+            typer.echo(f"  member {c} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
+                       f"{t.best_epochs[c]}; test {metrics_line(test)}{flag}")
+        if run.kept is not None:
+            from ..mil.pipeline import FITTED_FLOOR, FITTED_RATIO
+
+            u = run.meta.metrics["candidate_unexplained_variance"]
+            out = ", ".join(f"member {m} (seed {run.meta.ensemble.candidate_seeds[m]}, 1 - R^2 {u[m]:.3g})"
+                            for m in range(len(u)) if m not in kept)
+            typer.echo(f"left out of the served mean, as it did not fit: {out}; the rule: validation 1 - R^2 of "
+                       f"the returns over {FITTED_FLOOR:g} and over {FITTED_RATIO:g}x the best member's ({min(u):.3g})")
         if run.test_metrics is not None:
             m = run.test_metrics
             typer.echo(f"ensemble mean: test {metrics_line(m)}, mean return std {m['return_std']:.4f}")
-        typer.echo(f"serving member (hidden state): {int(run.model.serving_member)}")
+        typer.echo(f"serving member (hidden state): {kept[int(run.model.serving_member)]}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
 
 

@@ -128,7 +128,9 @@ class DataInfo:
 @dataclass(frozen=True)
 class EnsembleInfo:
     """The members: how many, which serves its hidden state, their weight and split seeds, how
-    they were split; with keep_members "best", the candidates trained and the one kept."""
+    they were split; when members were left out (keep_members "best" or "fitted"), the
+    candidates trained, their seeds and validation losses, and `kept`: the candidates' indices
+    that are the members (best: also `chosen`, the one kept)."""
 
     members: int = 1
     serving_member: int = 0
@@ -139,6 +141,7 @@ class EnsembleInfo:
     candidate_seeds: list | None = None
     chosen: int | None = None
     candidate_val_loss: list | None = None
+    kept: list | None = None
     extra: dict = field(default_factory=dict)  # entries this version does not know
 
 

@@ -124,3 +124,10 @@ class Run:
     def chosen(self) -> int | None:
         """keep_members best: the kept candidate's index among those trained (None: all kept)."""
         return self.meta.ensemble.chosen
+
+    @property
+    def kept(self) -> list | None:
+        """The candidates' indices that are the members, when some were left out (keep_members
+        best or fitted); None: every member trained was kept."""
+        e = self.meta.ensemble
+        return e.kept if e.kept is not None else None if e.chosen is None else [e.chosen]

@@ -77,6 +77,7 @@ from .models import OUTPUT_ACTIVATIONS, MILRewardModel, ModelConfig, model_confi
 
 CONFIG_FILE = Path(__file__).resolve().parents[2] / "config" / "mil_training.yaml"
 SCHEDULES = ("constant", "cosine", "plateau")
+KEEP_MEMBERS = ("fitted", "all", "best")  # which of the K members trained are served (pipeline.fit)
 FEEDBACK = feedback.FEEDBACK  # the kinds of labels trained on (nmrm_ros/feedback.py)
 
 
@@ -114,7 +115,7 @@ class TrainConfig:
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
     prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.fit)
-    keep_members: str = "all"  # all: the members are served as their mean; best: only the best on validation is kept
+    keep_members: str = "fitted"  # all: the members' mean is served; best: only the best on validation; fitted: all but those that did not fit (pipeline.fitted_members)
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -159,7 +160,7 @@ class TrainConfig:
                  ("served_state", self.served_state in ("h_tanh_c", "h_c", "h"), "h_tanh_c, h_c or h"),
                  ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
                  ("preference_weight", self.preference_weight > 0, "> 0"),
-                 ("keep_members", self.keep_members in ("all", "best"), "all or best"),
+                 ("keep_members", self.keep_members in KEEP_MEMBERS, " or ".join(KEEP_MEMBERS)),
                  ("prefix_fraction", 0 <= self.prefix_fraction <= 1
                   and (self.prefix_fraction == 0 or self.feedback == "returns"),
                   "in [0, 1], and 0 unless feedback is returns (it cuts return-labelled episodes)"),
