@@ -252,6 +252,9 @@ def test_keep_members_fitted_serves_and_records_the_members_kept(tmp_path, monke
     loaded = Run.load(tmp_path / "fitted")
     assert loaded.kept == kept and loaded.meta.ensemble.candidates == 3
     assert len(loaded.meta.metrics["candidate_unexplained_variance"]) == 3
+    history = loaded.meta.metrics["val_loss_history"]  # every candidate's validation loss, per epoch
+    assert len(history) == run.train.epochs_run and all(len(h) == 3 for h in history)
+    assert history[-1] == pytest.approx(run.train.history[-1]["val_loss"], rel=1e-5)
     _print_run(run, cfg)
     printed = capsys.readouterr().out
     assert f"left out of the served mean, as it did not fit: member {out} (" in printed

@@ -125,6 +125,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                  "best_epochs": result.best_epochs, "still_improving": result.still_improving,
                  "epochs_run": result.epochs_run, "seconds": result.seconds,
+                 # per epoch, each trained member's validation criterion (6 digits): how it stopped
+                 "val_loss_history": [[float(f"{v:.6g}") for v in h["val_loss"]] for h in result.history],
                  **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {})})
     if out is not None:
         run.save(out)
