@@ -203,7 +203,7 @@ def test_keep_members_best_keeps_the_member_best_on_validation(tmp_path):
 
 def test_fitted_members_leaves_out_only_a_member_that_did_not_fit():
     """The rule on the unexplained validation variances of measured checkpoints (pipeline.py)."""
-    from nmrm_ros.mil.pipeline import fitted_members
+    from nmrm_ros.mil.fitted import fitted_members
 
     assert fitted_members([0.999, 0.0015, 0.0004], serving=2) == [1, 2]  # cue corridor, data seed 0
     assert fitted_members([0.999, 0.999, 0.00007], serving=2) == [2]  # cue corridor, data seed 1
@@ -216,16 +216,43 @@ def test_fitted_members_leaves_out_only_a_member_that_did_not_fit():
 
 
 def test_unexplained_variance_skips_unlabelled_episodes_and_constant_labels():
-    from nmrm_ros.mil.pipeline import unexplained_variance
+    from nmrm_ros.mil.fitted import unexplained_variance
 
-    ds = make_toy_dataset("push_switch", 20, seed=0)
-    ds.returns[:] = np.arange(20.0)
-    ds.returns[3] = np.nan
-    val = np.arange(10)
-    labels = np.delete(np.arange(10.0), 3)
-    assert unexplained_variance(ds, val, 2.0) == pytest.approx(2.0 / np.var(labels))
-    ds.returns[:] = 1.0
-    assert unexplained_variance(ds, val, 2.0) == 0.0
+    labels = np.arange(10.0)
+    labels[3] = np.nan
+    assert unexplained_variance(labels, 2.0) == pytest.approx(2.0 / np.var(np.delete(labels, 3)))
+    assert unexplained_variance(np.ones(10), 2.0) == 0.0
+
+
+def test_a_member_that_cannot_fit_is_done_at_its_first_plateau():
+    """keep_members fitted under the plateau schedule: a member whose ReLUs are all dead (it can
+    only learn the mean return) is done once it is plateau_patience epochs past its last progress
+    and unfitted, while another has learnt the task; that one trains on as it would have."""
+    from nmrm_ros.mil.training import initialise
+
+    ds = make_toy_dataset("toggle_switch", 300, seed=0)
+    tr, va, _ = split_indices(len(ds), 0)
+    config = model_config("csc_lstm", "toggle_switch", ds.state_size)
+
+    def train(keep):
+        ens = init_ensemble(config, [0, 1, 2])
+        cfg = load_train_config("toggle_switch", schedule="plateau", plateau_patience=5, patience=60, max_epochs=30,
+                                keep_members=keep)
+        initialise(ens, cfg)
+        with torch.no_grad():  # member 1: its first layer's ReLUs dead on every input
+            ens.params["feature_extractor__0__weight"][1] = 0.0
+            ens.params["feature_extractor__0__bias"][1] = -1.0
+        return train_ensemble(ens, ds, [(tr, va)] * 3, cfg, seeds=[0, 1, 2], progress=False, fresh=False)
+
+    result = train("fitted")
+    done = {m: h["epoch"] for h in result.history for m in h.get("not_fitted", [])}
+    assert 1 in done and done[1] <= 10, done
+    assert all(h["train_loss"][1] is None for h in result.history if h["epoch"] > done[1])
+    everyone = train("all")
+    assert not any("not_fitted" in h for h in everyone.history)
+    assert everyone.best_val_loss[1] / np.var(ds.returns[va]) > 0.5  # with all its epochs: never fitted
+    best = int(np.argmin(result.best_val_loss))
+    assert best not in done and result.best_val_loss[best] == pytest.approx(everyone.best_val_loss[best], rel=1e-3)
 
 
 def test_keep_members_fitted_serves_and_records_the_members_kept(tmp_path, monkeypatch, capsys):

@@ -117,7 +117,7 @@ def _print_run(run, cfg) -> None:
             typer.echo(f"  member {c} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
                        f"{t.best_epochs[c]}; test {metrics_line(test)}{flag}")
         if run.kept is not None:
-            from ..mil.pipeline import FITTED_FLOOR, FITTED_RATIO
+            from ..mil.fitted import FITTED_FLOOR, FITTED_RATIO
 
             u = run.meta.metrics["candidate_unexplained_variance"]
             out = ", ".join(f"member {m} (seed {run.meta.ensemble.candidate_seeds[m]}, 1 - R^2 {u[m]:.3g})"

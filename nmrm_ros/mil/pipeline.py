@@ -13,18 +13,11 @@ from .checkpoint import DataInfo, DataSource, EnsembleInfo
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
+from .fitted import fitted_members, unexplained_variance
 from .run import Run
 from .training import TrainConfig, train_ensemble
 
 SPLIT_MODES = ("shared", "per_member", "bootstrap")
-#: keep_members "fitted": a member is left out of the served mean when its validation return MSE,
-#: as a fraction of its validation returns' variance (1 - R^2), is over FITTED_FLOOR and over
-#: FITTED_RATIO times the best member's. Chosen on 13 checkpoints of 6 tasks (the cue corridor,
-#: CartPole, the delivery robot, Charger, Timer, MiniGrid; docs/guide/models.md): it leaves out
-#: the members stuck on a plateau (cue corridor: 1 - R^2 = 1.0 beside 0.0004; Charger data seed 22:
-#: 0.065 beside 0.0034) and none of the others (members apart by up to 20x, all under 1%).
-FITTED_RATIO = 4.0
-FITTED_FLOOR = 0.01
 
 
 def member_splits(n: int, members: int, split_seed: int, mode: str,
@@ -51,24 +44,6 @@ def member_splits(n: int, members: int, split_seed: int, mode: str,
     return triples, [split_seed] * members
 
 
-def fitted_members(unexplained: list, serving: int) -> list:
-    """The members kept by keep_members "fitted", in order: all but those whose `unexplained`
-    validation variance (validation return MSE / variance of the validation returns, per member)
-    is over FITTED_FLOOR and over FITTED_RATIO times the least; `serving` is always kept."""
-    least = min(unexplained)
-    return [m for m, u in enumerate(unexplained)
-            if m == serving or not (u > FITTED_FLOOR and u > FITTED_RATIO * least)]
-
-
-def unexplained_variance(ds: TrajectoryDataset, val: np.ndarray, val_mse: float) -> float:
-    """val_mse / the variance of the return labels of `ds` at `val` (NaN labels left out);
-    0 when the labels do not vary (nothing to tell apart)."""
-    labels = ds.returns[val]
-    labels = labels[np.isfinite(labels)]
-    var = float(np.var(labels)) if len(labels) > 1 else 0.0
-    return val_mse / var if var > 0 and np.isfinite(val_mse) else 0.0
-
-
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
         split_mode: str = "shared", out: str | Path | None = None, progress: bool = True,
         data_source: DataSource | None = None, on_epoch=None, offsets: list[int] | None = None) -> Run:
@@ -82,7 +57,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     labelled with the return earned by then); the test split is whole episodes. cfg.keep_members
     (K > 1): "all" serves every member; "best" keeps only the one best on validation (a 1-member
     ensemble); "fitted" (feedback returns) leaves out the members that did not fit
-    (`fitted_members`). When members are left out the checkpoint records the candidates trained
+    (`fitted.fitted_members`). When members are left out the checkpoint records the candidates trained
     and which were kept."""
     trained_on = cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed) if cfg.prefix_fraction else ds
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
@@ -99,7 +74,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     if cfg.keep_members == "best":  # the others were candidates: one model is kept
         kept = [serving]
     elif cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1:
-        unexplained = [unexplained_variance(trained_on, va, v["return_mse"])
+        unexplained = [unexplained_variance(trained_on.returns[va], v["return_mse"])
                        for (_, va, _), v in zip(splits, member_val)]
         kept = fitted_members(unexplained, serving)
     candidates = {}

@@ -16,7 +16,9 @@ Learning-rate schedule: linear warm-up over `warmup_epochs`, then
   (from 1): after `plateau_patience` epochs without a new best validation return MSE it is
   multiplied by `plateau_factor`, and the member is done once the factor is below
   `min_lr_ratio` (converged) or after `patience` epochs without a new best; the run ends when
-  every member is done (`max_epochs` is only a safety limit). A member's factor scales its Adam
+  every member is done (`max_epochs` is only a safety limit). With keep_members fitted (K > 1, feedback
+  returns) a member is also done once it is `plateau_patience` epochs past its last progress and has
+  not fitted (`fitted.unfitted`): it would be left out of the served mean. A member's factor scales its Adam
   update (Adam's step is proportional to lr, weight decay included), so each member still trains
   exactly as it would alone; a done member is frozen. `grad_clip` > 0 clips each member's gradient norm.
 Progress: the clocks (patience, and the plateau's cuts) restart only at an epoch whose validation
@@ -72,6 +74,7 @@ from ..datasets.label_noise import swap_sources
 from ..datasets.trajectories import TrajectoryDataset, concatenate
 from .data import BagTensors, normalisation
 from .. import feedback
+from .fitted import label_variance, unfitted
 from .ensemble import MILEnsemble, as_ensemble
 from .models import OUTPUT_ACTIVATIONS, MILRewardModel, ModelConfig, model_config
 
@@ -115,7 +118,7 @@ class TrainConfig:
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
     prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.fit)
-    keep_members: str = "fitted"  # all: the members' mean is served; best: only the best on validation; fitted: all but those that did not fit (pipeline.fitted_members)
+    keep_members: str = "fitted"  # all: the members' mean is served; best: only the best on validation; fitted: all but those that did not fit (mil.fitted)
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -545,6 +548,10 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     progress_loss = np.full(K, np.inf)  # the loss at each member's last epoch of progress
     progress_epoch = np.zeros(K, dtype=int)
     best_state = [ens.member_state(m) for m in range(K)]
+    # keep_members fitted: a member on a plateau that did not fit (fitted.unfitted) is done at once,
+    # as it would be left out of the served mean at the end unless it left the plateau later
+    label_var = (np.array([label_variance(bags.returns[val_labels[m]].numpy()) for m in range(K)])
+                 if cfg.keep_members == "fitted" and cfg.feedback == "returns" and K > 1 else None)
     history = []
     plateau = cfg.schedule == "plateau"
     factors = torch.ones(K, dtype=torch.float64)  # plateau: each member's lr factor (0: done)
@@ -618,6 +625,12 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         progress_loss[improved], progress_epoch[improved] = val_loss[improved], epoch
         if plateau:
             _plateau_update(factors, since_cut, improved, epoch - progress_epoch, cfg)
+            if label_var is not None and bool((label_var > 0).all()):
+                stuck = ((factors.numpy() > 0) & (epoch - progress_epoch >= cfg.plateau_patience)
+                         & unfitted(best_mse / label_var))
+                factors[torch.as_tensor(stuck)] = 0.0
+                if stuck.any():
+                    history[-1]["not_fitted"] = np.flatnonzero(stuck).tolist()  # done: on a plateau, did not fit
             history[-1]["lr_factor"] = factors.tolist()  # each member's, for the next epoch
         if bar is not None:
             bar.update(1)
