@@ -42,7 +42,8 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="training-config overrides")
     args = parser.parse_args()
     ds = cached_dataset(args.task, 5000, 0)
-    cfg = load_train_config(args.task, seed=0, threads=1, **parse_settings(args.set))
+    # the repeats are independent runs, not an ensemble: every one is kept
+    cfg = load_train_config(args.task, seed=0, threads=1, **{"keep_members": "all", **parse_settings(args.set)})
     repeats = list(range(args.repeats))
     real = np.arange(ds.states.shape[1])[None, :] < ds.lengths[:, None]
     states = torch.as_tensor(ds.states[real], dtype=torch.float32)  # every real instance, (N, d)

@@ -66,7 +66,8 @@ def run_ensemble(job: tuple) -> list:
     from nmrm_ros.mil.pipeline import fit
 
     ds = cached_dataset(task, n, data_seed)
-    cfg = load_train_config(task, seed=0, threads=threads, **overrides)
+    # the repeats are independent runs (the paper's protocol), not an ensemble: every one is kept
+    cfg = load_train_config(task, seed=0, threads=threads, **{"keep_members": "all", **overrides})
     members = cfg.members if members is None else members
     if members > 1:
         return run_repeat_ensembles(task, arch, repeats, members, ds, cfg, log_every, save, data_seed,

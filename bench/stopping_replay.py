@@ -59,7 +59,8 @@ def replay(record: dict, patience: list) -> list | str:
     for p in patience:
         stops = [member_stop(m, p, cfg["plateau_patience"], cfg["plateau_factor"], cfg["min_lr_ratio"])
                  for m in losses]
-        ratios = [float(m[:s].min() / m[:r].min()) for m, s, r in zip(losses, stops, recorded)]
+        ratios = [float(m[:s].min() / m[:r].min()) if m[:r].min() > 0 else float(m[:s].min() == 0)
+                  for m, s, r in zip(losses, stops, recorded)]
         rows.append((p, max(stops), sum(stops), ratios))
     return rows
 

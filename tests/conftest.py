@@ -10,19 +10,27 @@ from pathlib import Path
 
 import pytest
 
-from nmrm_ros.ros.discovery import use_discovery_profile
+
+def _worker() -> tuple[int, int]:
+    """(this pytest-xdist worker's index, the number of workers); (0, 1) in a run without workers."""
+    name = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    return int(name[2:]), max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+
+
+# In a parallel run each worker, and every process it starts, gets its share of the cores for
+# torch's (OpenMP's) threads: two workers each training with every core's thread ran 4 spinning
+# threads on 2 cores, and a toy training test that takes 47 s took over 300 s (its timeout).
+# Set before torch is first imported, which reads it.
+if _worker()[1] > 1:
+    os.environ.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // _worker()[1])))
+
+from nmrm_ros.ros.discovery import use_discovery_profile  # noqa: E402
 
 use_discovery_profile()  # the in-process rclpy nodes and the ros2 CLI discover as our nodes do
 
 REPO = Path(__file__).resolve().parents[1]
 _domain_counter = itertools.count()
 _BASE_DOMAIN = int(os.environ.get("ROS_DOMAIN_ID", "0"))  # the run's (scripts/ros_env.sh: random per run)
-
-
-def _worker() -> tuple[int, int]:
-    """(this pytest-xdist worker's index, the number of workers); (0, 1) in a run without workers."""
-    name = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    return int(name[2:]), max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
 
 
 def _domains() -> range:

@@ -215,13 +215,15 @@ def test_fitted_members_leaves_out_only_a_member_that_did_not_fit():
     assert fitted_members([0.5, 0.02], serving=0) == [0, 1]  # the serving member stays, whatever it scores
 
 
-def test_unexplained_variance_skips_unlabelled_episodes_and_constant_labels():
-    from nmrm_ros.mil.fitted import unexplained_variance
+def test_the_rule_skips_unlabelled_episodes_and_judges_nothing_without_varied_labels():
+    from nmrm_ros.mil.fitted import label_variance, unfitted
 
     labels = np.arange(10.0)
     labels[3] = np.nan
-    assert unexplained_variance(labels, 2.0) == pytest.approx(2.0 / np.var(np.delete(labels, 3)))
-    assert unexplained_variance(np.ones(10), 2.0) == 0.0
+    assert label_variance(labels) == pytest.approx(np.var(np.delete(labels, 3)))
+    assert label_variance(np.array([1.0, np.nan])) == 0.0
+    assert unfitted([np.nan, 0.5, 0.001]).tolist() == [False, False, False]  # a member's labels did not vary
+    assert unfitted([np.inf, 0.5, 0.001]).tolist() == [True, True, False]  # a member that diverged
 
 
 def test_a_member_that_cannot_fit_is_done_at_its_first_plateau():
@@ -242,14 +244,19 @@ def test_a_member_that_cannot_fit_is_done_at_its_first_plateau():
         with torch.no_grad():  # member 1: its first layer's ReLUs dead on every input
             ens.params["feature_extractor__0__weight"][1] = 0.0
             ens.params["feature_extractor__0__bias"][1] = -1.0
-        return train_ensemble(ens, ds, [(tr, va)] * 3, cfg, seeds=[0, 1, 2], progress=False, fresh=False)
+        return train_ensemble(ens, ds, [(tr, va)] * 3, cfg, seeds=[0, 1, 2], progress=False, fresh=False,
+                              leave_out_unfitted=keep == "fitted")
 
     result = train("fitted")
-    done = {m: h["epoch"] for h in result.history for m in h.get("not_fitted", [])}
+    done = {int(m): h["epoch"] for h in result.history for m in np.flatnonzero(h.get("not_fitted", []))}
     assert 1 in done and done[1] <= 10, done
     assert all(h["train_loss"][1] is None for h in result.history if h["epoch"] > done[1])
     everyone = train("all")
     assert not any("not_fitted" in h for h in everyone.history)
+    assert result.member(1).history[-1]["train_loss"] is None  # per-member views of the history still work
+    assert train_ensemble(init_ensemble(config, [0, 1, 2]), ds, [(tr, va)] * 3,  # the default: every member trains on
+                          load_train_config("toggle_switch", max_epochs=1), seeds=[0, 1, 2],
+                          progress=False).val_label_variance == pytest.approx([np.var(ds.returns[va])] * 3)
     assert everyone.best_val_loss[1] / np.var(ds.returns[va]) > 0.5  # with all its epochs: never fitted
     best = int(np.argmin(result.best_val_loss))
     assert best not in done and result.best_val_loss[best] == pytest.approx(everyone.best_val_loss[best], rel=1e-3)
@@ -286,3 +293,13 @@ def test_keep_members_fitted_serves_and_records_the_members_kept(tmp_path, monke
     printed = capsys.readouterr().out
     assert f"left out of the served mean, as it did not fit: member {out} (" in printed
     assert "3 members in one pass" in printed and f"serving member (hidden state): {serving}" in printed
+    # one member left: the single model's report says who was left out too
+    monkeypatch.setattr(pipeline, "fitted_members", lambda u, s: [s])
+    alone = fit(ds, "csc_lstm", cfg, members=3, progress=False)
+    assert alone.model.members == 1 and alone.kept == [serving] and alone.chosen is None
+    _print_run(alone, cfg)
+    printed = capsys.readouterr().out
+    assert "left out of the served mean, as it did not fit: member" in printed and "best epoch" in printed
+    from nmrm_ros.mil.training import TrainConfig
+
+    assert TrainConfig().keep_members == "all"  # what runs recorded before the setting trained with

@@ -109,6 +109,7 @@ def _print_run(run, cfg) -> None:
                    f"test {metrics_line(run.test_metrics)}")
         if t.still_improving[c]:
             typer.echo(f"note: still improving at the epoch limit ({cfg.max_epochs}); more epochs may help")
+        _print_left_out(run, kept)
     else:
         typer.echo(f"{len(t.best_val_loss)} members in one pass: {t.epochs_run} epochs in {t.seconds:.1f} s")
         for m, test in enumerate(run.member_test):
@@ -116,19 +117,25 @@ def _print_run(run, cfg) -> None:
             flag = ", still improving at the limit" if t.still_improving[c] else ""
             typer.echo(f"  member {c} (seed {run.seeds[m]}, split {run.split_seeds[m]}): best epoch "
                        f"{t.best_epochs[c]}; test {metrics_line(test)}{flag}")
-        if run.kept is not None:
-            from ..mil.fitted import FITTED_FLOOR, FITTED_RATIO
-
-            u = run.meta.metrics["candidate_unexplained_variance"]
-            out = ", ".join(f"member {m} (seed {run.meta.ensemble.candidate_seeds[m]}, 1 - R^2 {u[m]:.3g})"
-                            for m in range(len(u)) if m not in kept)
-            typer.echo(f"left out of the served mean, as it did not fit: {out}; the rule: validation 1 - R^2 of "
-                       f"the returns over {FITTED_FLOOR:g} and over {FITTED_RATIO:g}x the best member's ({min(u):.3g})")
+        _print_left_out(run, kept)
         if run.test_metrics is not None:
             m = run.test_metrics
             typer.echo(f"ensemble mean: test {metrics_line(m)}, mean return std {m['return_std']:.4f}")
         typer.echo(f"serving member (hidden state): {kept[int(run.model.serving_member)]}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
+
+
+def _print_left_out(run, kept: list) -> None:
+    """keep_members fitted: the members left out of the served mean, and why (nothing otherwise)."""
+    u = run.meta.metrics.get("candidate_unexplained_variance")
+    if run.kept is None or run.chosen is not None or u is None:
+        return
+    from ..mil.fitted import FITTED_FLOOR, FITTED_RATIO
+
+    out = ", ".join(f"member {m} (seed {run.meta.ensemble.candidate_seeds[m]}, 1 - R^2 {u[m]:.3g})"
+                    for m in range(len(u)) if m not in kept)
+    typer.echo(f"left out of the served mean, as it did not fit: {out}; the rule: validation 1 - R^2 of "
+               f"the returns over {FITTED_FLOOR:g} and over {FITTED_RATIO:g}x the best member's ({min(u):.3g})")
 
 
 @app.command()

@@ -13,7 +13,7 @@ from .checkpoint import DataInfo, DataSource, EnsembleInfo
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .fitted import fitted_members, unexplained_variance
+from .fitted import fitted_members
 from .run import Run
 from .training import TrainConfig, train_ensemble
 
@@ -64,8 +64,9 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = cfg.model_config(architecture, ds.task, ds.state_size)
     ens = init_ensemble(config, seeds)
+    fitted_only = cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1
     result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
-                            progress=progress, on_epoch=on_epoch)
+                            progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
     member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
     member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
@@ -73,9 +74,9 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     kept, unexplained = list(range(members)), None
     if cfg.keep_members == "best":  # the others were candidates: one model is kept
         kept = [serving]
-    elif cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1:
-        unexplained = [unexplained_variance(trained_on.returns[va], v["return_mse"])
-                       for (_, va, _), v in zip(splits, member_val)]
+    elif fitted_only and all(var > 0 for var in result.val_label_variance):
+        # judged as training judged: its validation criterion over its validation labels' variance
+        unexplained = [v / var for v, var in zip(result.best_val_loss, result.val_label_variance)]
         kept = fitted_members(unexplained, serving)
     candidates = {}
     if len(kept) < members:  # the checkpoint records the candidates trained and those kept
@@ -100,8 +101,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                  "best_epochs": result.best_epochs, "still_improving": result.still_improving,
                  "epochs_run": result.epochs_run, "seconds": result.seconds,
-                 # per epoch, each trained member's validation criterion (6 digits): how it stopped
-                 "val_loss_history": [[float(f"{v:.6g}") for v in h["val_loss"]] for h in result.history],
+                 # per epoch, each trained member's validation criterion: how it stopped
+                 "val_loss_history": [[float(v) for v in h["val_loss"]] for h in result.history],
                  **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {})})
     if out is not None:
         run.save(out)

@@ -16,9 +16,9 @@ Learning-rate schedule: linear warm-up over `warmup_epochs`, then
   (from 1): after `plateau_patience` epochs without a new best validation return MSE it is
   multiplied by `plateau_factor`, and the member is done once the factor is below
   `min_lr_ratio` (converged) or after `patience` epochs without a new best; the run ends when
-  every member is done (`max_epochs` is only a safety limit). With keep_members fitted (K > 1, feedback
-  returns) a member is also done once it is `plateau_patience` epochs past its last progress and has
-  not fitted (`fitted.unfitted`): it would be left out of the served mean. A member's factor scales its Adam
+  every member is done (`max_epochs` is only a safety limit). For `pipeline.fit` with keep_members
+  fitted (K > 1, feedback returns) a member is also done once it is `plateau_patience` epochs past
+  its last progress and has not fitted (`fitted.unfitted`): it would be left out of the served mean. A member's factor scales its Adam
   update (Adam's step is proportional to lr, weight decay included), so each member still trains
   exactly as it would alone; a done member is frozen. `grad_clip` > 0 clips each member's gradient norm.
 Progress: the clocks (patience, and the plateau's cuts) restart only at an epoch whose validation
@@ -118,7 +118,7 @@ class TrainConfig:
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
     prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.fit)
-    keep_members: str = "fitted"  # all: the members' mean is served; best: only the best on validation; fitted: all but those that did not fit (mil.fitted)
+    keep_members: str = "all"  # all: the members' mean is served; best: only the best on validation; fitted (config/mil_training.yaml's default): all but those that did not fit (mil.fitted)
 
     def lr_at(self, epoch: float) -> float:
         """Learning rate at (fractional, 0-based) epoch."""
@@ -203,6 +203,7 @@ class EnsembleTrainResult:
     epochs_run: int
     seconds: float
     history: list = field(default_factory=list)  # per epoch: lists of K train losses / val MSEs
+    val_label_variance: list | None = None  # feedback returns: the variance of each member's validation labels
 
     def member(self, m: int) -> TrainResult:
         return TrainResult(self.best_epochs[m], self.best_val_loss[m], self.epochs_run,
@@ -457,7 +458,7 @@ def _val_preference_loss(ens: MILEnsemble, bags: BagTensors, prefs: torch.Tensor
 def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: TrainConfig,
                    seeds: list | None = None, progress: bool = True,
                    on_epoch=None, label_swap: list | None = None,
-                   fresh: bool = True) -> EnsembleTrainResult:
+                   fresh: bool = True, leave_out_unfitted: bool = False) -> EnsembleTrainResult:
     """Train every member of `ens` in place on `ds`.
 
     splits: K pairs (train indices, validation indices) into `ds`, one per member (equal train
@@ -469,7 +470,10 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     (default cfg.label_swap for all), e.g. to train a label-noise study as one ensemble.
     fresh: `ens` is newly initialised, so `initialise(ens, cfg)` is applied first; False for a
     warm start, whose trained weights are kept. cfg.feedback chooses the labels trained on (see
-    the module docstring); ValueError if the dataset has none of that kind.
+    the module docstring); ValueError if the dataset has none of that kind. leave_out_unfitted
+    (feedback returns, K > 1, schedule plateau): a member on a plateau that did not fit
+    (`fitted.unfitted`) is done at once, for a caller that leaves such members out (`pipeline.fit`
+    with keep_members fitted); history then marks the epoch ("not_fitted": K bools).
     """
     K = ens.members
     if len(splits) != K:
@@ -548,10 +552,10 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     progress_loss = np.full(K, np.inf)  # the loss at each member's last epoch of progress
     progress_epoch = np.zeros(K, dtype=int)
     best_state = [ens.member_state(m) for m in range(K)]
-    # keep_members fitted: a member on a plateau that did not fit (fitted.unfitted) is done at once,
-    # as it would be left out of the served mean at the end unless it left the plateau later
+    # the variance of each member's validation labels (feedback returns): what fitted.unfitted judges by
     label_var = (np.array([label_variance(bags.returns[val_labels[m]].numpy()) for m in range(K)])
-                 if cfg.keep_members == "fitted" and cfg.feedback == "returns" and K > 1 else None)
+                 if cfg.feedback == "returns" else None)
+    leave_out_unfitted = leave_out_unfitted and label_var is not None and K > 1
     history = []
     plateau = cfg.schedule == "plateau"
     factors = torch.ones(K, dtype=torch.float64)  # plateau: each member's lr factor (0: done)
@@ -625,12 +629,13 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         progress_loss[improved], progress_epoch[improved] = val_loss[improved], epoch
         if plateau:
             _plateau_update(factors, since_cut, improved, epoch - progress_epoch, cfg)
-            if label_var is not None and bool((label_var > 0).all()):
+            if leave_out_unfitted and bool((label_var > 0).all()):
+                # on a plateau and unfitted (never the best on the criterion: it serves)
                 stuck = ((factors.numpy() > 0) & (epoch - progress_epoch >= cfg.plateau_patience)
-                         & unfitted(best_mse / label_var))
+                         & unfitted(best_mse / label_var) & (np.arange(K) != int(np.argmin(best_mse))))
                 factors[torch.as_tensor(stuck)] = 0.0
                 if stuck.any():
-                    history[-1]["not_fitted"] = np.flatnonzero(stuck).tolist()  # done: on a plateau, did not fit
+                    history[-1]["not_fitted"] = stuck.tolist()  # done: on a plateau, did not fit
             history[-1]["lr_factor"] = factors.tolist()  # each member's, for the next epoch
         if bar is not None:
             bar.update(1)
@@ -650,7 +655,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     still_improving = [bool(epoch - b < cfg.patience and (not plateau or factors[m] > 0))
                        for m, b in enumerate(progress_epoch)]
     return EnsembleTrainResult(best_epoch.tolist(), best_mse.tolist(), still_improving, epoch,
-                               time.perf_counter() - start, history)
+                               time.perf_counter() - start, history,
+                               None if label_var is None else label_var.tolist())
 
 
 def _per_member(loss: torch.Tensor, computed: torch.Tensor | None, K: int) -> torch.Tensor:
