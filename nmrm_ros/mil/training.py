@@ -555,7 +555,8 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     # the variance of each member's validation labels (feedback returns): what fitted.unfitted judges by
     label_var = (np.array([label_variance(bags.returns[val_labels[m]].numpy()) for m in range(K)])
                  if cfg.feedback == "returns" else None)
-    leave_out_unfitted = leave_out_unfitted and label_var is not None and K > 1
+    # (labels without variance: nobody is judged, as in fitted.unfitted)
+    leave_out_unfitted = leave_out_unfitted and label_var is not None and K > 1 and bool((label_var > 0).all())
     history = []
     plateau = cfg.schedule == "plateau"
     factors = torch.ones(K, dtype=torch.float64)  # plateau: each member's lr factor (0: done)
@@ -629,7 +630,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
         progress_loss[improved], progress_epoch[improved] = val_loss[improved], epoch
         if plateau:
             _plateau_update(factors, since_cut, improved, epoch - progress_epoch, cfg)
-            if leave_out_unfitted and bool((label_var > 0).all()):
+            if leave_out_unfitted:
                 # on a plateau and unfitted (never the best on the criterion: it serves)
                 stuck = ((factors.numpy() > 0) & (epoch - progress_epoch >= cfg.plateau_patience)
                          & unfitted(best_mse / label_var) & (np.arange(K) != int(np.argmin(best_mse))))
