@@ -1,0 +1,249 @@
+"""Against the peers: imitation's preference comparisons beside our CSC model, on our tasks, from the
+same teacher and the same budgets of comparisons (issue 55).
+
+    .venv/bin/python bench/imitation_peer.py --setup          # (re)build imitation's pinned venv
+    .venv/bin/python bench/imitation_peer.py --tasks key --comparisons 1000 4000 --seeds 0 1 2 --jobs 2
+    .venv/bin/python bench/imitation_peer.py --report
+
+`--setup` builds runs/peers/imitation-venv from bench/peers/imitation-requirements.txt (imitation
+1.0.1 with the gymnasium 0.29 / stable-baselines3 2.2 it pins, torch 2.13.0 CPU; all pinned) and
+installs this source tree into it without dependencies, so our tasks reach imitation through their
+Gymnasium API (`nmrm_ros.rl.wrappers.make_reward_env`), not through copies. It runs again only when
+the requirements or our sources changed (a stamp in the venv). Nothing of imitation enters .venv.
+
+Cells (task, comparisons n, teacher, seed r):
+- `imitation` (and `imitation_ensemble`, `--variants`): bench/peers/imitation_run.py in the peer
+  venv: imitation's `train_preference_comparisons` script with its defaults (its reward net learns
+  from n comparisons of its own agent's rollouts, its PPO agent trains on that net for
+  `--timesteps` steps, imitation's default 10^6), seed r, one thread;
+- `csc_lstm`: our offline model from n comparisons of random-policy episodes (data seed r, the
+  preference grid's run, `bench/preferences.py`: the task's default model, feedback preferences),
+  then our DQN agent on it (config/rl.yaml, 400 episodes, agent seed r).
+Teachers: our `SimulatedTeacher`, perfect (beta = inf) or noisy (beta = 1, mistake 0.1), for both.
+Judged alike: held-out preference accuracy and reward correlation (Pearson r per step, and centred)
+on 2000 screened episodes of data seed 999 (`nmrm_ros.mil.evaluation`), and the agent's greedy
+oracle return over 50 episodes with episode seeds 10^8.. (`nmrm_ros.rl.evaluation.evaluate_agent`).
+Seconds: wall time of the cell on one thread (training and agent; the judging not included).
+
+Resumes: each cell is bench/results/peers/imitation/<kind>_<task>_<teacher>_n<n>_s<r>.json; what
+exists is not run again; --report prints and writes table.txt from what exists.
+"""
+
+from __future__ import annotations
+
+import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results" / "peers" / "imitation"
+RUNS = ROOT / "runs" / "peers"
+VENV = RUNS / "imitation-venv"
+REQUIREMENTS = ROOT / "bench" / "peers" / "imitation-requirements.txt"
+RUNNER = ROOT / "bench" / "peers" / "imitation_run.py"
+TASKS = ("key", "timer", "charger")
+KINDS = ("imitation", "imitation_ensemble", "csc_lstm")
+TEACHERS = ("perfect", "noisy")
+HELD_OUT_SEED, HELD_OUT_N = 999, 2000
+EVAL_EPISODES, AGENT_EPISODES = 50, 400
+
+
+def source_digest() -> str:
+    """sha256 of the requirements and of every source file of nmrm_ros (what the venv holds)."""
+    h = hashlib.sha256(REQUIREMENTS.read_bytes())
+    for path in sorted((ROOT / "nmrm_ros").rglob("*")):
+        if path.is_file() and "__pycache__" not in path.parts:
+            h.update(str(path.relative_to(ROOT)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def setup(force: bool = False) -> Path:
+    """Build (or update) the peer venv; returns its python. Pinned requirements only."""
+    python = VENV / "bin" / "python"
+    stamp = VENV / "nmrm-peer-stamp"
+    digest = source_digest()
+    if not force and stamp.is_file() and stamp.read_text() == digest:
+        return python
+    if not python.is_file():
+        subprocess.run([sys._base_executable, "-m", "venv", str(VENV)], check=True)
+    pip = [str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check"]
+    subprocess.run(pip + ["-r", str(REQUIREMENTS)], check=True)
+    subprocess.run(pip + ["--no-deps", "--force-reinstall", str(ROOT)], check=True, cwd=RUNS)
+    stamp.write_text(digest)
+    return python
+
+
+def cell_name(kind: str, task: str, teacher: str, n: int, r: int) -> str:
+    return f"{kind}_{task}_{teacher}_n{n}_s{r}"
+
+
+def held_out(task: str):
+    from nmrm_ros.datasets.cache import cached_dataset
+
+    return cached_dataset(task, HELD_OUT_N, HELD_OUT_SEED)
+
+
+def score(ds, rewards: np.ndarray) -> dict:
+    """Our held-out metrics of per-step rewards (n, L) predicted for the episodes of `ds`."""
+    from nmrm_ros.mil.evaluation import centred, correlation, preference_accuracy
+
+    mask = np.arange(ds.rewards.shape[1])[None, :] < ds.lengths[:, None]
+    steps = np.broadcast_to(np.arange(ds.rewards.shape[1]), mask.shape)[mask]
+    pred, true = rewards[mask], ds.rewards[mask]
+    return {"preference_accuracy": preference_accuracy((rewards * mask).sum(1), ds.returns)[0],
+            "reward_correlation": correlation(pred, true),
+            "reward_correlation_centred": correlation(centred(pred, steps), centred(true, steps))}
+
+
+def run_imitation(job: tuple) -> dict:
+    kind, task, teacher, n, r, timesteps, python = job
+    name = cell_name(kind, task, teacher, n, r)
+    out = RUNS / "imitation" / name
+    ds = held_out(task)
+    held = RUNS / "held" / f"{task}_n{HELD_OUT_N}_s{HELD_OUT_SEED}.npz"
+    if not held.is_file():
+        held.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(held.with_suffix(".tmp.npz"), states=ds.states, actions=ds.actions,
+                 final_states=ds.final_states, lengths=ds.lengths)
+        os.replace(held.with_suffix(".tmp.npz"), held)
+    cmd = [str(python), "-W", "ignore", str(RUNNER), "--task", task, "--comparisons", str(n), "--teacher", teacher,
+           "--seed", str(r), "--timesteps", str(timesteps), "--held-out", str(held), "--out", str(out)]
+    if kind == "imitation_ensemble":
+        cmd.append("--ensemble")
+    env = dict(os.environ, OMP_NUM_THREADS="1", TQDM_DISABLE="1")
+    log = out.with_suffix(".log")
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "w") as f:
+        done = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, env=env)
+    if done.returncode != 0:
+        raise RuntimeError(f"{name}: the peer run failed (exit {done.returncode}); its log: {log}")
+    res = json.loads((out / "result.json").read_text())
+    res.update(kind=kind, command=" ".join(cmd[2:]).replace(str(ROOT) + "/", ""),
+               held=score(ds, np.load(out / "held_rewards.npy")), seconds=res["wall_seconds"])
+    return save(name, res)
+
+
+def run_ours(job: tuple) -> dict:
+    """Our CSC model from n comparisons (the preference grid's run) and our DQN agent on it."""
+    kind, task, teacher, n, r, _, _ = job
+    import torch
+
+    torch.set_num_threads(1)
+    import preferences
+    from nmrm_ros.rl import train_agent
+    from nmrm_ros.rl.evaluation import evaluate_agent
+
+    name = cell_name(kind, task, teacher, n, r)
+    grid = RUNS / "ours"  # the preference grid's layout: models in runs/preferences/<tag>/models/
+    t0 = time.perf_counter()
+    model = preferences.run((task, "csc_lstm", teacher, n, r, {}, grid))
+    checkpoint = preferences.MODELS / grid.name / "models" / f"{preferences.run_name(task, 'csc_lstm', teacher, n, r)}.pt"
+    agent_dir = RUNS / "ours_agents" / name
+    t1 = time.perf_counter()
+    train_agent(task, "model", checkpoint=checkpoint, episodes=AGENT_EPISODES, seed=r, out=agent_dir, progress=False)
+    t2 = time.perf_counter()
+    judged = evaluate_agent(agent_dir / "policy.zip", task, checkpoint=checkpoint, episodes=EVAL_EPISODES)
+    res = {"kind": kind, "task": task, "teacher": teacher, "comparisons": n, "seed": r,
+           "held": {k: model["held"][k] for k in ("preference_accuracy", "reward_correlation",
+                                                   "reward_correlation_centred")},
+           "agent_greedy_oracle_returns": [float(x) for x in judged.returns],
+           "agent_greedy_oracle_return": float(np.mean(judged.returns)),
+           "random_policy_oracle_return": float(np.mean(judged.random_returns)),
+           "model_cpu_seconds": model["seconds"], "agent_seconds": t2 - t1,
+           "seconds": model["seconds"] + (t2 - t1), "threads": 1, "agent_episodes": AGENT_EPISODES,
+           "wall_seconds": t2 - t0,
+           "command": f"bench/imitation_peer.py --kinds csc_lstm --tasks {task} --teachers {teacher} "
+                      f"--comparisons {n} --seeds {r}"}
+    return save(name, res)
+
+
+def save(name: str, res: dict) -> dict:
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    tmp = RESULTS / f"{name}.json.tmp"
+    tmp.write_text(json.dumps(res, indent=1))
+    os.replace(tmp, RESULTS / f"{name}.json")
+    return res
+
+
+def run_cell(job: tuple) -> dict:
+    return run_ours(job) if job[0] == "csc_lstm" else run_imitation(job)
+
+
+def report() -> str:
+    cells = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
+    lines = ["# bench/imitation_peer.py: imitation 1.0.1's preference comparisons (its defaults; `imitation_ensemble`: "
+             "its reward_ensemble config) vs our CSC LSTM, same teacher, same number of comparisons n",
+             "# held-out: 2000 screened episodes of data seed 999; agent: greedy oracle return over 50 episodes "
+             "(seeds 10^8..); mean [worst] over seeds; s: wall seconds per cell on one thread"]
+    lines.append(f"{'task':8} {'teacher':8} {'n':>5} {'model':19} {'seeds':8} {'pref. accuracy':>16} "
+                 f"{'reward corr.':>16} {'agent oracle return':>22} {'random':>7} {'s/cell':>7} {'agent steps':>11}")
+    groups: dict = {}
+    for c in cells:
+        groups.setdefault((c["task"], c["teacher"], c["comparisons"], c["kind"]), []).append(c)
+    order = {k: i for i, k in enumerate(KINDS)}
+    for (task, teacher, n, kind), cs in sorted(groups.items(), key=lambda kv: (TASKS.index(kv[0][0]) if kv[0][0] in TASKS else 99,
+                                                                             kv[0][1], kv[0][2], order[kv[0][3]])):
+        def mw(values):
+            return f"{np.mean(values):6.3f} [{min(values):6.3f}]"
+        acc = [c["held"]["preference_accuracy"] for c in cs]
+        corr = [c["held"]["reward_correlation"] for c in cs]
+        ret = [c["agent_greedy_oracle_return"] for c in cs]
+        steps = cs[0].get("timesteps", cs[0].get("agent_episodes", 0) * 100)
+        seeds = ",".join(str(c["seed"]) for c in sorted(cs, key=lambda c: c["seed"]))
+        lines.append(f"{task:8} {teacher:8} {n:5d} {kind:19} {seeds:8} {mw(acc):>16} {mw(corr):>16} "
+                     f"{np.mean(ret):8.2f} [{min(ret):8.2f}]  {np.mean([c['random_policy_oracle_return'] for c in cs]):6.2f} "
+                     f"{np.mean([c['seconds'] for c in cs]):7.0f} {steps:11d}")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--setup", action="store_true", help="build or update the peer venv, then stop")
+    ap.add_argument("--tasks", nargs="*", default=["key"], choices=TASKS)
+    ap.add_argument("--kinds", nargs="*", default=["imitation", "csc_lstm"], choices=KINDS)
+    ap.add_argument("--teachers", nargs="*", default=["perfect"], choices=TEACHERS)
+    ap.add_argument("--comparisons", nargs="*", type=int, default=[1000, 4000])
+    ap.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
+    ap.add_argument("--timesteps", type=int, default=1_000_000,
+                    help="imitation's agent's environment steps (its script's default: 10^6)")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--report", action="store_true", help="run nothing: print and write the table")
+    args = ap.parse_args()
+    bad = [f"--{k} {v}" for k, v in (("jobs", args.jobs), ("timesteps", args.timesteps)) if v < 1]
+    bad += [f"--comparisons {n}" for n in args.comparisons if n < 1]
+    if bad:
+        sys.exit(f"error: {', '.join(bad)}: must be >= 1")
+    if args.setup:
+        print(f"peer venv ready: {setup(force=True).parent.parent}")
+        return
+    if not args.report:
+        python = setup() if any(k != "csc_lstm" for k in args.kinds) else None
+        jobs = [(k, t, tch, n, r, args.timesteps, python) for n in sorted(args.comparisons) for r in args.seeds
+                for t in args.tasks for tch in args.teachers for k in args.kinds
+                if not (RESULTS / f"{cell_name(k, t, tch, n, r)}.json").is_file()]
+        print(f"# {len(jobs)} cells to run (finished ones skipped)", flush=True)
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for res in pool.map(run_cell, jobs):
+                print(f"  {cell_name(res['kind'], res['task'], res['teacher'], res['comparisons'], res['seed'])}: "
+                      f"held-out preference accuracy {res['held']['preference_accuracy']:.3f}, reward correlation "
+                      f"{res['held']['reward_correlation']:.3f}, agent's greedy oracle return "
+                      f"{res['agent_greedy_oracle_return']:.2f} ({res['seconds']:.0f} s)", flush=True)
+    text = report()
+    print(text)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "table.txt").write_text(text + "\n# command: .venv/bin/python bench/imitation_peer.py "
+                                       "(see its docstring; --report redraws)\n")
+
+
+if __name__ == "__main__":
+    main()
