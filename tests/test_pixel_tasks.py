@@ -3,6 +3,8 @@ image encoder in every architecture (batched, per member and online alike; train
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pytest
 import torch
@@ -451,6 +453,20 @@ def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module
     assert ds.states.shape[-1] == 6 and ds.privileged.shape == (40, 20, 2)
     run = fit(ds, "csc_lstm", load_train_config(task, max_epochs=1, threads=1), progress=False)
     assert run.model.config.image_shape == () and run.model.config.input_size == 6
+    # the checkpoint records the encoder weights' SHA-256; once the file holds other weights,
+    # loading the model is refused in one line (its states would be another encoder's features)
+    from nmrm_ros.mil import Run
+    from nmrm_ros.mil.checkpoint import CheckpointError
+
+    path = run.save(tmp_path / "frozen_model")
+    assert Run.load(path).meta.encoder_sha256 == hashlib.sha256((tmp_path / "enc.pt").read_bytes()).hexdigest()
+    kept = (tmp_path / "enc.pt").read_bytes()
+    torch.manual_seed(1)
+    torch.save(type(encoder_module)().state_dict(), tmp_path / "enc.pt")
+    with pytest.raises(CheckpointError, match="was trained with the encoder weights .*enc.pt of SHA-256 .*restore"):
+        Run.load(path)
+    (tmp_path / "enc.pt").write_bytes(kept)
+    assert Run.load(path).model.config.input_size == 6
 
 
 @pytest.mark.parametrize("tail, message", [

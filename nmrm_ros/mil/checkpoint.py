@@ -162,6 +162,8 @@ class CheckpointMeta:
     split_seed: int | None = None
     package_version: str = ""
     weights_sha256: str | None = None
+    #: the SHA-256 of the frozen image encoder's weights file its task spec names, when it was saved
+    encoder_sha256: str | None = None
     format: str = FORMAT
     extra: dict = field(default_factory=dict)
 
@@ -183,7 +185,7 @@ class CheckpointMeta:
                   "data": {"source": self.data.source.to_dict(), "n": self.data.n, "meta": self.data.meta,
                            **self.data.extra},
                   "train_config": self.train_config, "metrics": self.metrics}
-        for key in ("seed", "split_seed", "calibration"):
+        for key in ("seed", "split_seed", "calibration", "encoder_sha256"):
             if getattr(self, key) is not None:
                 record[key] = getattr(self, key)
         return {**record, **self.extra}
@@ -206,7 +208,7 @@ class CheckpointMeta:
             calibration=record.get("calibration"), normalisation=dict(record.get("normalisation") or {}),
             seed=record.get("seed"), split_seed=record.get("split_seed"),
             package_version=str(record.get("package_version", "")), weights_sha256=record.get("weights_sha256"),
-            format=str(record.get("format")),
+            encoder_sha256=record.get("encoder_sha256"), format=str(record.get("format")),
             extra={k: v for k, v in record.items() if k not in known})
 
 
@@ -240,6 +242,19 @@ def normalisation_of(model) -> dict:
 
 def sha256_of(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def check_encoder_weights(meta: CheckpointMeta, weights: Path) -> None:
+    """CheckpointError where the frozen encoder's weights file that the checkpoint's task spec
+    names now holds other weights than when the model was saved (its states would be another
+    encoder's features); nothing where no encoder SHA-256 is recorded or the file is not here."""
+    from ..tasks.frozen_encoder import weights_sha256
+
+    now = weights_sha256(meta.task) if meta.encoder_sha256 else None
+    if now is not None and now[1] != meta.encoder_sha256:
+        raise CheckpointError(f"checkpoint {weights} was trained with the encoder weights {now[0]} of SHA-256 "
+                              f"{meta.encoder_sha256[:12]}..., the file now holds {now[1][:12]}...: restore "
+                              f"that file, or train the model again on states of the new encoder")
 
 
 def load_checkpoint(path: str | Path, architecture: str | None = None,
@@ -282,6 +297,7 @@ def load_checkpoint(path: str | Path, architecture: str | None = None,
                               f"a .pt and a .json from different trainings?")
     if weights.stat().st_size == 0:
         raise CheckpointError(f"cannot read checkpoint weights {weights}: the file is empty")
+    check_encoder_weights(meta, weights)
     try:
         state = torch.load(weights, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling/format failure is a bad checkpoint
