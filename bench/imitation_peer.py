@@ -16,9 +16,14 @@ Cells (task, comparisons n, teacher, seed r):
   venv: imitation's `train_preference_comparisons` script with its defaults (its reward net learns
   from n comparisons of its own agent's rollouts, its PPO agent trains on that net for
   `--timesteps` steps, imitation's default 10^6), seed r, one thread;
+- `ppo_oracle`: no reward learning (n is not used): imitation's agent (PPO as its script makes it)
+  on the oracle's reward itself, observing the state only, `--timesteps` steps: what its agent
+  could reach were its reward net perfect;
 - `csc_lstm`: our offline model from n comparisons of random-policy episodes (data seed r, the
   preference grid's run, `bench/preferences.py`: the task's default model, feedback preferences),
-  then our DQN agent on it (config/rl.yaml, 400 episodes, agent seed r).
+  then our DQN agent on it (config/rl.yaml, 400 episodes, agent seed r);
+- `dqn_oracle`: our DQN agent on the oracle's reward with its hidden state (the oracle-with-hidden
+  agent our issues compare with): what our agent reaches were our model perfect.
 Teachers: our `SimulatedTeacher`, perfect (beta = inf) or noisy (beta = 1, mistake 0.1), for both.
 Judged alike: held-out preference accuracy and reward correlation (Pearson r per step, and centred)
 on 2000 screened episodes of data seed 999 (`nmrm_ros.mil.evaluation`), and the agent's greedy
@@ -51,7 +56,8 @@ VENV = RUNS / "imitation-venv"
 REQUIREMENTS = ROOT / "bench" / "peers" / "imitation-requirements.txt"
 RUNNER = ROOT / "bench" / "peers" / "imitation_run.py"
 TASKS = ("key", "timer", "charger")
-KINDS = ("imitation", "imitation_ensemble", "csc_lstm")
+KINDS = ("imitation", "imitation_ensemble", "ppo_oracle", "csc_lstm", "dqn_oracle")
+REFERENCES = ("ppo_oracle", "dqn_oracle")  # agents on the oracle's reward: no teacher, no comparisons
 TEACHERS = ("perfect", "noisy")
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 EVAL_EPISODES, AGENT_EPISODES = 50, 400
@@ -116,10 +122,13 @@ def run_imitation(job: tuple) -> dict:
         np.savez(held.with_suffix(".tmp.npz"), states=ds.states, actions=ds.actions,
                  final_states=ds.final_states, lengths=ds.lengths)
         os.replace(held.with_suffix(".tmp.npz"), held)
-    cmd = [str(python), "-W", "ignore", str(RUNNER), "--task", task, "--comparisons", str(n), "--teacher", teacher,
+    cmd = [str(python), "-W", "ignore", str(RUNNER), "--task", task, "--comparisons", str(max(n, 1)),
+           "--teacher", teacher if teacher in TEACHERS else "perfect",
            "--seed", str(r), "--timesteps", str(timesteps), "--held-out", str(held), "--out", str(out)]
     if kind == "imitation_ensemble":
         cmd.append("--ensemble")
+    if kind == "ppo_oracle":
+        cmd.append("--true-reward")
     env = dict(os.environ, OMP_NUM_THREADS="1", TQDM_DISABLE="1")
     log = out.with_suffix(".log")
     log.parent.mkdir(parents=True, exist_ok=True)
@@ -128,13 +137,17 @@ def run_imitation(job: tuple) -> dict:
     if done.returncode != 0:
         raise RuntimeError(f"{name}: the peer run failed (exit {done.returncode}); its log: {log}")
     res = json.loads((out / "result.json").read_text())
-    res.update(kind=kind, command=" ".join(cmd[2:]).replace(str(ROOT) + "/", ""),
-               held=score(ds, np.load(out / "held_rewards.npy")), seconds=res["wall_seconds"])
+    held_scores = score(ds, np.load(out / "held_rewards.npy")) if kind != "ppo_oracle" else None
+    res.update(kind=kind, command=" ".join(cmd[2:]).replace(str(ROOT) + "/", ""), held=held_scores,
+               seconds=res["wall_seconds"])
+    if kind == "ppo_oracle":  # no teacher, no comparisons
+        res.update(teacher="none", comparisons=0, teacher_knobs=None)
     return save(name, res)
 
 
 def run_ours(job: tuple) -> dict:
-    """Our CSC model from n comparisons (the preference grid's run) and our DQN agent on it."""
+    """Our CSC model from n comparisons (the preference grid's run) and our DQN agent on it; or
+    (`dqn_oracle`) our DQN agent on the oracle with its hidden state."""
     kind, task, teacher, n, r, _, _ = job
     import torch
 
@@ -144,6 +157,18 @@ def run_ours(job: tuple) -> dict:
     from nmrm_ros.rl.evaluation import evaluate_agent
 
     name = cell_name(kind, task, teacher, n, r)
+    if kind == "dqn_oracle":
+        agent_dir = RUNS / "ours_agents" / name
+        t0 = time.perf_counter()
+        train_agent(task, "oracle", episodes=AGENT_EPISODES, seed=r, out=agent_dir, progress=False)
+        seconds = time.perf_counter() - t0
+        judged = evaluate_agent(agent_dir / "policy.zip", task, episodes=EVAL_EPISODES, reward="oracle")
+        return save(name, {"kind": kind, "task": task, "teacher": "none", "comparisons": 0, "seed": r, "held": None,
+                           "agent_greedy_oracle_returns": [float(x) for x in judged.returns],
+                           "agent_greedy_oracle_return": float(np.mean(judged.returns)),
+                           "random_policy_oracle_return": float(np.mean(judged.random_returns)),
+                           "seconds": seconds, "threads": 1, "agent_episodes": AGENT_EPISODES,
+                           "command": f"bench/imitation_peer.py --kinds dqn_oracle --tasks {task} --seeds {r}"})
     grid = RUNS / "ours"  # the preference grid's layout: models in runs/preferences/<tag>/models/
     t0 = time.perf_counter()
     model = preferences.run((task, "csc_lstm", teacher, n, r, {}, grid))
@@ -176,7 +201,7 @@ def save(name: str, res: dict) -> dict:
 
 
 def run_cell(job: tuple) -> dict:
-    return run_ours(job) if job[0] == "csc_lstm" else run_imitation(job)
+    return run_ours(job) if job[0] in ("csc_lstm", "dqn_oracle") else run_imitation(job)
 
 
 def report() -> str:
@@ -194,9 +219,9 @@ def report() -> str:
     for (task, teacher, n, kind), cs in sorted(groups.items(), key=lambda kv: (TASKS.index(kv[0][0]) if kv[0][0] in TASKS else 99,
                                                                              kv[0][1], kv[0][2], order[kv[0][3]])):
         def mw(values):
-            return f"{np.mean(values):6.3f} [{min(values):6.3f}]"
-        acc = [c["held"]["preference_accuracy"] for c in cs]
-        corr = [c["held"]["reward_correlation"] for c in cs]
+            return f"{np.mean(values):6.3f} [{min(values):6.3f}]" if values else "-"
+        acc = [c["held"]["preference_accuracy"] for c in cs if c["held"]]
+        corr = [c["held"]["reward_correlation"] for c in cs if c["held"]]
         ret = [c["agent_greedy_oracle_return"] for c in cs]
         steps = cs[0].get("timesteps", cs[0].get("agent_episodes", 0) * 100)
         seeds = ",".join(str(c["seed"]) for c in sorted(cs, key=lambda c: c["seed"]))
@@ -227,16 +252,18 @@ def main() -> None:
         print(f"peer venv ready: {setup(force=True).parent.parent}")
         return
     if not args.report:
-        python = setup() if any(k != "csc_lstm" for k in args.kinds) else None
-        jobs = [(k, t, tch, n, r, args.timesteps, python) for n in sorted(args.comparisons) for r in args.seeds
-                for t in args.tasks for tch in args.teachers for k in args.kinds
-                if not (RESULTS / f"{cell_name(k, t, tch, n, r)}.json").is_file()]
+        python = setup() if any(k.startswith(("imitation", "ppo")) for k in args.kinds) else None
+        cells = [(k, t, tch, n, r) for n in sorted(args.comparisons) for r in args.seeds for t in args.tasks
+                 for tch in args.teachers for k in args.kinds if k not in REFERENCES]
+        cells = [(k, t, "none", 0, r) for k in REFERENCES if k in args.kinds for r in args.seeds for t in args.tasks] + cells
+        jobs = [(*c, args.timesteps, python) for c in cells if not (RESULTS / f"{cell_name(*c)}.json").is_file()]
         print(f"# {len(jobs)} cells to run (finished ones skipped)", flush=True)
+        held = lambda res, key: f"{res['held'][key]:.3f}" if res["held"] else "-"  # noqa: E731
         with ProcessPoolExecutor(args.jobs) as pool:
             for res in pool.map(run_cell, jobs):
                 print(f"  {cell_name(res['kind'], res['task'], res['teacher'], res['comparisons'], res['seed'])}: "
-                      f"held-out preference accuracy {res['held']['preference_accuracy']:.3f}, reward correlation "
-                      f"{res['held']['reward_correlation']:.3f}, agent's greedy oracle return "
+                      f"held-out preference accuracy {held(res, 'preference_accuracy')}, reward correlation "
+                      f"{held(res, 'reward_correlation')}, agent's greedy oracle return "
                       f"{res['agent_greedy_oracle_return']:.2f} ({res['seconds']:.0f} s)", flush=True)
     text = report()
     print(text)

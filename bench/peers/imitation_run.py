@@ -54,6 +54,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--timesteps", type=int, required=True, help="its agent's environment steps (total_timesteps)")
     ap.add_argument("--ensemble", action="store_true", help="its reward.reward_ensemble named config")
+    ap.add_argument("--true-reward", action="store_true",
+                    help="no reward learning: its agent (PPO, its script's settings) on the oracle's reward itself")
     ap.add_argument("--held-out", type=Path, required=True)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--eval-episodes", type=int, default=50)
@@ -115,6 +117,21 @@ def held_rewards(reward_net, held: dict) -> np.ndarray:
     return out
 
 
+def true_reward_agent(args):
+    """PPO as imitation's script makes it (its rl ingredient: SB3's PPO, 2048 steps a rollout over
+    8 environments, minibatch 64, 10 epochs, lr 3e-4, no entropy bonus; its policy ingredient's
+    FeedForward32Policy) on the oracle's reward itself, `--timesteps` steps, seed `--seed`: what its agent could
+    reach were its reward model perfect (on the state it observes, without the oracle's memory)."""
+    from imitation.policies.base import FeedForward32Policy
+    from imitation.util import util
+    from stable_baselines3 import PPO
+
+    venv = util.make_vec_env(register(args.task), n_envs=8, rng=np.random.default_rng(args.seed), parallel=False)
+    agent = PPO(FeedForward32Policy, venv, n_steps=2048 // 8, batch_size=64, n_epochs=10, learning_rate=3e-4,
+                ent_coef=0.0, seed=args.seed, device="cpu", verbose=0)
+    return agent.learn(args.timesteps)
+
+
 def main(argv=None) -> None:
     args = parse_args(argv)
     if args.comparisons < 1 or args.timesteps < 1 or args.eval_episodes < 1:
@@ -137,33 +154,38 @@ def main(argv=None) -> None:
         "logging": {"log_dir": str(args.out / "log"), "log_format_strs": ["csv"]},
     }
     named = ["reward.reward_ensemble"] if args.ensemble else []
-    wall, cpu = time.perf_counter(), time.process_time()
-    run = train_preference_comparisons_ex.run(config_updates=updates, named_configs=named,
-                                              options={"--loglevel": "WARNING"})
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    final = args.out / "log" / "checkpoints" / "final"
-    reward_net = torch.load(final / "reward_net.pt", weights_only=False)
     from stable_baselines3 import PPO
 
-    agent = PPO.load(final / "policy" / "model.zip", device="cpu")
+    wall, cpu = time.perf_counter(), time.process_time()
+    if args.true_reward:
+        agent, config, stats = true_reward_agent(args), {"total_timesteps": args.timesteps, "seed": args.seed}, {}
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    else:
+        run = train_preference_comparisons_ex.run(config_updates=updates, named_configs=named,
+                                                  options={"--loglevel": "WARNING"})
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        final = args.out / "log" / "checkpoints" / "final"
+        reward_net = torch.load(final / "reward_net.pt", weights_only=False)
+        agent = PPO.load(final / "policy" / "model.zip", device="cpu")
+        with np.load(args.held_out) as f:
+            held = {k: f[k] for k in f.files}
+        np.save(args.out / "held_rewards.npy", held_rewards(reward_net, held))
+        stats = run.result.get("imit_stats", {}) if isinstance(run.result, dict) else {}
+        config = run.config
     judged = evaluate_agent(agent, args.task, episodes=args.eval_episodes, reward="oracle-no-hidden")
-    with np.load(args.held_out) as f:
-        held = {k: f[k] for k in f.files}
-    np.save(args.out / "held_rewards.npy", held_rewards(reward_net, held))
-    stats = run.result.get("imit_stats", {}) if isinstance(run.result, dict) else {}
     import imitation
 
     result = {
         "task": args.task, "teacher": args.teacher, "teacher_knobs": {k: v for k, v in TEACHERS[args.teacher].items()},
         "comparisons": args.comparisons, "seed": args.seed, "timesteps": args.timesteps,
-        "variant": "ensemble" if args.ensemble else "defaults", "imitation": imitation.__version__,
+        "variant": "true_reward" if args.true_reward else "ensemble" if args.ensemble else "defaults", "imitation": imitation.__version__,
         "wall_seconds": wall, "cpu_seconds": cpu, "threads": 1,
         "agent_greedy_oracle_returns": [float(r) for r in judged.returns],
         "agent_greedy_oracle_return": float(np.mean(judged.returns)),
         "random_policy_oracle_return": float(np.mean(judged.random_returns)),
         "imitation_rollout_stats": {k: float(v) for k, v in stats.items() if np.isscalar(v)},
         "config": {k: (v if isinstance(v, (int, float, str, bool, type(None), list, dict)) else repr(v))
-                   for k, v in run.config.items() if k not in ("gatherer_cls",)},
+                   for k, v in config.items() if k not in ("gatherer_cls",)},
         "pid": os.getpid(),
     }
     (args.out / "result.json").write_text(json.dumps(result, indent=1, default=repr))
