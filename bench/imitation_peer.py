@@ -16,6 +16,10 @@ Cells (task, comparisons n, teacher, seed r):
   venv: imitation's `train_preference_comparisons` script with its defaults (its reward net learns
   from n comparisons of its own agent's rollouts, its PPO agent trains on that net for
   `--timesteps` steps, imitation's default 10^6), seed r, one thread;
+- `imitation_offline`: the same, but its comparisons are of the episodes our model learns from
+  (its script's `trajectory_path`: the 5000 screened random-policy episodes of data seed r, which
+  its fragmenter pairs at random) instead of its agent's; then its agent on that net, as its docs
+  train one on a learnt reward: its reward net and ours from the same kind of data;
 - `ppo_oracle`: no reward learning (n is not used): imitation's agent (PPO as its script makes it)
   on the oracle's reward itself, observing the state only, `--timesteps` steps: what its agent
   could reach were its reward net perfect;
@@ -56,7 +60,7 @@ VENV = RUNS / "imitation-venv"
 REQUIREMENTS = ROOT / "bench" / "peers" / "imitation-requirements.txt"
 RUNNER = ROOT / "bench" / "peers" / "imitation_run.py"
 TASKS = ("key", "timer", "charger")
-KINDS = ("imitation", "imitation_ensemble", "ppo_oracle", "csc_lstm", "dqn_oracle")
+KINDS = ("imitation", "imitation_ensemble", "imitation_offline", "ppo_oracle", "csc_lstm", "dqn_oracle")
 REFERENCES = ("ppo_oracle", "dqn_oracle")  # agents on the oracle's reward: no teacher, no comparisons
 TEACHERS = ("perfect", "noisy")
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
@@ -111,6 +115,22 @@ def score(ds, rewards: np.ndarray) -> dict:
             "reward_correlation_centred": correlation(centred(pred, steps), centred(true, steps))}
 
 
+def export_episodes(task: str, r: int) -> Path:
+    """The 5000 screened episodes of data seed r (what our model of run r learns from) as an npz
+    the peer venv reads."""
+    from nmrm_ros.datasets.cache import cached_dataset
+
+    path = RUNS / "data" / f"{task}_n5000_s{r}.npz"
+    if not path.is_file():
+        ds = cached_dataset(task, 5000, r)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, states=ds.states, actions=ds.actions, final_states=ds.final_states, rewards=ds.rewards,
+                 lengths=ds.lengths)
+        os.replace(tmp, path)
+    return path
+
+
 def run_imitation(job: tuple) -> dict:
     kind, task, teacher, n, r, timesteps, python = job
     name = cell_name(kind, task, teacher, n, r)
@@ -129,6 +149,8 @@ def run_imitation(job: tuple) -> dict:
         cmd.append("--ensemble")
     if kind == "ppo_oracle":
         cmd.append("--true-reward")
+    if kind == "imitation_offline":
+        cmd += ["--trajectories", str(export_episodes(task, r))]
     env = dict(os.environ, OMP_NUM_THREADS="1", TQDM_DISABLE="1")
     log = out.with_suffix(".log")
     log.parent.mkdir(parents=True, exist_ok=True)

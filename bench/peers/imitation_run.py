@@ -11,7 +11,10 @@ Sacred experiment's Python API), with its defaults (fragments of 100 steps, 5 it
 comparisons before the agent trains, a hyperbolic query schedule, 3 reward epochs an iteration, its
 `BasicRewardNet` with running input and output normalisation, PPO with SB3's hyperparameters on 8
 environments trained on the learnt reward all along), and `--ensemble`: its `reward.reward_ensemble`
-named config (5 members, trained by its `EnsembleTrainer`). Two settings are ours: the environment
+named config (5 members, trained by its `EnsembleTrainer`); `--trajectories`: its script's
+`trajectory_path`, comparisons of a fixed set of episodes (ours: the ones our model learns from)
+instead of its agent's, then its agent on the learnt reward; `--true-reward`: no reward learning,
+its agent on the oracle's reward (a reference). Two settings are ours: the environment
 runs in one process (`environment.parallel=False`, so that a run keeps to one core as ours do) and
 the teacher: imitation's gatherer class is replaced by `TeacherGatherer`, which asks our
 `SimulatedTeacher` (perfect: beta = inf; noisy: beta = 1, mistake 0.1, as bench/preferences.py) to
@@ -54,6 +57,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--timesteps", type=int, required=True, help="its agent's environment steps (total_timesteps)")
     ap.add_argument("--ensemble", action="store_true", help="its reward.reward_ensemble named config")
+    ap.add_argument("--trajectories", type=Path, default=None,
+                    help="compare fragments of these episodes (npz: states, actions, final_states, rewards, lengths) "
+                         "instead of its agent's (its script's trajectory_path), then train its agent on the learnt reward")
     ap.add_argument("--true-reward", action="store_true",
                     help="no reward learning: its agent (PPO, its script's settings) on the oracle's reward itself")
     ap.add_argument("--held-out", type=Path, required=True)
@@ -117,19 +123,37 @@ def held_rewards(reward_net, held: dict) -> np.ndarray:
     return out
 
 
-def true_reward_agent(args):
+def ppo_agent(args, reward_fn=None):
     """PPO as imitation's script makes it (its rl ingredient: SB3's PPO, 2048 steps a rollout over
     8 environments, minibatch 64, 10 epochs, lr 3e-4, no entropy bonus; its policy ingredient's
-    FeedForward32Policy) on the oracle's reward itself, `--timesteps` steps, seed `--seed`: what its agent could
-    reach were its reward model perfect (on the state it observes, without the oracle's memory)."""
+    FeedForward32Policy), `--timesteps` steps, seed `--seed`, on `reward_fn` (imitation's RewardFn:
+    a learnt net's `predict_processed`) or, without one, on the oracle's reward itself: what its agent
+    could reach were its reward model perfect (on the state it observes, without the oracle's memory)."""
     from imitation.policies.base import FeedForward32Policy
+    from imitation.rewards.reward_wrapper import RewardVecEnvWrapper
     from imitation.util import util
     from stable_baselines3 import PPO
 
     venv = util.make_vec_env(register(args.task), n_envs=8, rng=np.random.default_rng(args.seed), parallel=False)
+    if reward_fn is not None:
+        venv = RewardVecEnvWrapper(venv, reward_fn)
     agent = PPO(FeedForward32Policy, venv, n_steps=2048 // 8, batch_size=64, n_epochs=10, learning_rate=3e-4,
                 ent_coef=0.0, seed=args.seed, device="cpu", verbose=0)
     return agent.learn(args.timesteps)
+
+
+def save_trajectories(src: Path, dst: Path) -> Path:
+    """Our episodes (npz) as imitation's trajectories with the oracle's rewards, saved where its
+    script's `trajectory_path` reads them."""
+    from imitation.data import serialize, types
+
+    with np.load(src) as f:
+        states, actions, final, rewards, lengths = (f[k] for k in ("states", "actions", "final_states", "rewards", "lengths"))
+    trajs = [types.TrajectoryWithRew(obs=np.concatenate([states[i, :n], final[i][None]]).astype(np.float32),
+                                     acts=actions[i, :n], infos=None, terminal=True, rews=rewards[i, :n].astype(np.float32))
+             for i, n in enumerate(lengths.astype(int))]
+    serialize.save(dst, trajs)
+    return dst
 
 
 def main(argv=None) -> None:
@@ -156,29 +180,36 @@ def main(argv=None) -> None:
     named = ["reward.reward_ensemble"] if args.ensemble else []
     from stable_baselines3 import PPO
 
-    wall, cpu = time.perf_counter(), time.process_time()
+    if args.trajectories:
+        updates["trajectory_path"] = str(save_trajectories(args.trajectories, args.out / "trajectories"))
+    start = (time.perf_counter(), time.process_time())  # the run and its agent's training, not the judging
     if args.true_reward:
-        agent, config, stats = true_reward_agent(args), {"total_timesteps": args.timesteps, "seed": args.seed}, {}
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        agent, config, stats = ppo_agent(args), {"total_timesteps": args.timesteps, "seed": args.seed}, {}
     else:
         run = train_preference_comparisons_ex.run(config_updates=updates, named_configs=named,
                                                   options={"--loglevel": "WARNING"})
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-        final = args.out / "log" / "checkpoints" / "final"
-        reward_net = torch.load(final / "reward_net.pt", weights_only=False)
-        agent = PPO.load(final / "policy" / "model.zip", device="cpu")
+        reward_net = torch.load(args.out / "log" / "checkpoints" / "final" / "reward_net.pt", weights_only=False)
+        if args.trajectories:  # no agent trained meanwhile: its agent on the learnt reward, as its docs do
+            import functools
+
+            agent = ppo_agent(args, functools.partial(reward_net.predict_processed, update_stats=False))
+        else:
+            agent = PPO.load(args.out / "log" / "checkpoints" / "final" / "policy" / "model.zip", device="cpu")
+        stats = run.result.get("imit_stats", {}) if isinstance(run.result, dict) else {}
+        config = run.config
+    wall, cpu = time.perf_counter() - start[0], time.process_time() - start[1]
+    if not args.true_reward:
         with np.load(args.held_out) as f:
             held = {k: f[k] for k in f.files}
         np.save(args.out / "held_rewards.npy", held_rewards(reward_net, held))
-        stats = run.result.get("imit_stats", {}) if isinstance(run.result, dict) else {}
-        config = run.config
     judged = evaluate_agent(agent, args.task, episodes=args.eval_episodes, reward="oracle-no-hidden")
     import imitation
 
     result = {
         "task": args.task, "teacher": args.teacher, "teacher_knobs": {k: v for k, v in TEACHERS[args.teacher].items()},
         "comparisons": args.comparisons, "seed": args.seed, "timesteps": args.timesteps,
-        "variant": "true_reward" if args.true_reward else "ensemble" if args.ensemble else "defaults", "imitation": imitation.__version__,
+        "variant": ("true_reward" if args.true_reward else "offline" if args.trajectories
+                    else "ensemble" if args.ensemble else "defaults"), "imitation": imitation.__version__,
         "wall_seconds": wall, "cpu_seconds": cpu, "threads": 1,
         "agent_greedy_oracle_returns": [float(r) for r in judged.returns],
         "agent_greedy_oracle_return": float(np.mean(judged.returns)),
