@@ -124,7 +124,7 @@ def export_episodes(task: str, r: int) -> Path:
     if not path.is_file():
         ds = cached_dataset(task, 5000, r)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
         np.savez(tmp, states=ds.states, actions=ds.actions, final_states=ds.final_states, rewards=ds.rewards,
                  lengths=ds.lengths)
         os.replace(tmp, path)
@@ -139,9 +139,9 @@ def run_imitation(job: tuple) -> dict:
     held = RUNS / "held" / f"{task}_n{HELD_OUT_N}_s{HELD_OUT_SEED}.npz"
     if not held.is_file():
         held.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(held.with_suffix(".tmp.npz"), states=ds.states, actions=ds.actions,
-                 final_states=ds.final_states, lengths=ds.lengths)
-        os.replace(held.with_suffix(".tmp.npz"), held)
+        tmp = held.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, states=ds.states, actions=ds.actions, final_states=ds.final_states, lengths=ds.lengths)
+        os.replace(tmp, held)
     cmd = [str(python), "-W", "ignore", str(RUNNER), "--task", task, "--comparisons", str(max(n, 1)),
            "--teacher", teacher if teacher in TEACHERS else "perfect",
            "--seed", str(r), "--timesteps", str(timesteps), "--held-out", str(held), "--out", str(out)]
@@ -160,7 +160,7 @@ def run_imitation(job: tuple) -> dict:
         raise RuntimeError(f"{name}: the peer run failed (exit {done.returncode}); its log: {log}")
     res = json.loads((out / "result.json").read_text())
     held_scores = score(ds, np.load(out / "held_rewards.npy")) if kind != "ppo_oracle" else None
-    res.update(kind=kind, command=" ".join(cmd[2:]).replace(str(ROOT) + "/", ""), held=held_scores,
+    res.update(kind=kind, command=" ".join(cmd[3:]).replace(str(ROOT) + "/", ""), held=held_scores,
                seconds=res["wall_seconds"])
     if kind == "ppo_oracle":  # no teacher, no comparisons
         res.update(teacher="none", comparisons=0, teacher_knobs=None)
@@ -176,47 +176,67 @@ def run_ours(job: tuple) -> dict:
     torch.set_num_threads(1)
     import preferences
     from nmrm_ros.rl import train_agent
-    from nmrm_ros.rl.evaluation import evaluate_agent
 
     name = cell_name(kind, task, teacher, n, r)
     if kind == "dqn_oracle":
         agent_dir = RUNS / "ours_agents" / name
-        t0 = time.perf_counter()
-        train_agent(task, "oracle", episodes=AGENT_EPISODES, seed=r, out=agent_dir, progress=False)
-        seconds = time.perf_counter() - t0
-        judged = evaluate_agent(agent_dir / "policy.zip", task, episodes=EVAL_EPISODES, reward="oracle")
+        seconds = train_once(agent_dir, lambda: train_agent(task, "oracle", episodes=AGENT_EPISODES, seed=r,
+                                                           out=agent_dir, progress=False))
         return save(name, {"kind": kind, "task": task, "teacher": "none", "comparisons": 0, "seed": r, "held": None,
-                           "agent_greedy_oracle_returns": [float(x) for x in judged.returns],
-                           "agent_greedy_oracle_return": float(np.mean(judged.returns)),
-                           "random_policy_oracle_return": float(np.mean(judged.random_returns)),
-                           "seconds": seconds, "threads": 1, "agent_episodes": AGENT_EPISODES,
+                           **judge_ours(agent_dir, task, None), "seconds": seconds, "threads": 1,
+                           "agent_episodes": AGENT_EPISODES,
                            "command": f"bench/imitation_peer.py --kinds dqn_oracle --tasks {task} --seeds {r}"})
     grid = RUNS / "ours"  # the preference grid's layout: models in runs/preferences/<tag>/models/
-    t0 = time.perf_counter()
     model = preferences.run((task, "csc_lstm", teacher, n, r, {}, grid))
     checkpoint = preferences.MODELS / grid.name / "models" / f"{preferences.run_name(task, 'csc_lstm', teacher, n, r)}.pt"
     agent_dir = RUNS / "ours_agents" / name
-    t1 = time.perf_counter()
-    train_agent(task, "model", checkpoint=checkpoint, episodes=AGENT_EPISODES, seed=r, out=agent_dir, progress=False)
-    t2 = time.perf_counter()
-    judged = evaluate_agent(agent_dir / "policy.zip", task, checkpoint=checkpoint, episodes=EVAL_EPISODES)
+    agent_seconds = train_once(agent_dir, lambda: train_agent(task, "model", checkpoint=checkpoint,
+                                                              episodes=AGENT_EPISODES, seed=r, out=agent_dir,
+                                                              progress=False))
     res = {"kind": kind, "task": task, "teacher": teacher, "comparisons": n, "seed": r,
            "held": {k: model["held"][k] for k in ("preference_accuracy", "reward_correlation",
                                                    "reward_correlation_centred")},
-           "agent_greedy_oracle_returns": [float(x) for x in judged.returns],
-           "agent_greedy_oracle_return": float(np.mean(judged.returns)),
-           "random_policy_oracle_return": float(np.mean(judged.random_returns)),
-           "model_cpu_seconds": model["seconds"], "agent_seconds": t2 - t1,
-           "seconds": model["seconds"] + (t2 - t1), "threads": 1, "agent_episodes": AGENT_EPISODES,
-           "wall_seconds": t2 - t0,
+           **judge_ours(agent_dir, task, checkpoint),
+           "model_cpu_seconds": model["seconds"], "agent_seconds": agent_seconds,
+           "seconds": model["seconds"] + agent_seconds, "threads": 1, "agent_episodes": AGENT_EPISODES,
            "command": f"bench/imitation_peer.py --kinds csc_lstm --tasks {task} --teachers {teacher} "
                       f"--comparisons {n} --seeds {r}"}
     return save(name, res)
 
 
+def train_once(agent_dir: Path, train) -> float:
+    """Wall seconds of `train()` (our agent into agent_dir); an agent already there (agent.json
+    written last) is not trained again: its seconds are read back."""
+    record = agent_dir / "seconds.json"
+    if (agent_dir / "agent.json").is_file() and record.is_file():
+        return float(json.loads(record.read_text())["seconds"])
+    t0 = time.perf_counter()
+    train()
+    seconds = time.perf_counter() - t0
+    record.write_text(json.dumps({"seconds": seconds}))
+    return seconds
+
+
+def judge_ours(agent_dir: Path, task: str, checkpoint: Path | None) -> dict:
+    """Our agent's greedy oracle returns: its last policy (the figure, as imitation's final PPO is
+    judged) and the kept one (`policy.zip`: train_agent keeps the best of every 20 episodes by the
+    worse of its learnt and its oracle return, a choice imitation's agent does not get)."""
+    from nmrm_ros.rl.evaluation import evaluate_agent
+
+    reward = "model" if checkpoint is not None else "oracle"
+    last = agent_dir / "last_policy.zip"
+    last = last if last.is_file() else agent_dir / "policy.zip"  # the last is the kept one
+    judged = evaluate_agent(last, task, checkpoint=checkpoint, episodes=EVAL_EPISODES, reward=reward)
+    kept = evaluate_agent(agent_dir / "policy.zip", task, checkpoint=checkpoint, episodes=EVAL_EPISODES, reward=reward)
+    return {"agent_greedy_oracle_returns": [float(x) for x in judged.returns],
+            "agent_greedy_oracle_return": float(np.mean(judged.returns)),
+            "kept_policy_greedy_oracle_return": float(np.mean(kept.returns)),
+            "random_policy_oracle_return": float(np.mean(judged.random_returns))}
+
+
 def save(name: str, res: dict) -> dict:
     RESULTS.mkdir(parents=True, exist_ok=True)
-    tmp = RESULTS / f"{name}.json.tmp"
+    tmp = RESULTS / f"{name}.{os.getpid()}.json.tmp"
     tmp.write_text(json.dumps(res, indent=1))
     os.replace(tmp, RESULTS / f"{name}.json")
     return res

@@ -72,15 +72,25 @@ def env_id(task: str) -> str:
     return f"NmrmPeer-{task.replace('_', '')}-v0"
 
 
+#: a reset seed s starts our episode count at s * SEED_SPREAD: SB3 seeds env i of a vectorised env with
+#: seed + i, and our envs then step their episode seeds by one an episode (`EpisodeSeeds`), so
+#: without the spread env i's k-th episode would be env i + 1's (k - 1)-th (as `train_agent` does)
+SEED_SPREAD = 10 ** 6
+
+
 def register(task: str) -> str:
     """Register our task (oracle reward, hidden state not observed) under a Gymnasium id."""
     import gymnasium as gym
 
     from nmrm_ros.rl.wrappers import make_reward_env
 
+    class SpreadSeeds(gym.Wrapper):
+        def reset(self, *, seed=None, options=None):
+            return self.env.reset(seed=None if seed is None else int(seed) * SEED_SPREAD, options=options)
+
     name = env_id(task)
     if name not in gym.registry:
-        gym.register(name, entry_point=lambda: make_reward_env(task, "oracle-no-hidden", seed=0))
+        gym.register(name, entry_point=lambda: SpreadSeeds(make_reward_env(task, "oracle-no-hidden", seed=0)))
     return name
 
 
