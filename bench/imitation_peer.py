@@ -30,8 +30,12 @@ Cells (task, comparisons n, teacher, seed r):
   agent our issues compare with): what our agent reaches were our model perfect.
 Teachers: our `SimulatedTeacher`, perfect (beta = inf) or noisy (beta = 1, mistake 0.1), for both.
 Judged alike: held-out preference accuracy and reward correlation (Pearson r per step, and centred)
-on 2000 screened episodes of data seed 999 (`nmrm_ros.mil.evaluation`), and the agent's greedy
-oracle return over 50 episodes with episode seeds 10^8.. (`nmrm_ros.rl.evaluation.evaluate_agent`).
+on 2000 screened episodes of data seed 999 (`nmrm_ros.mil.evaluation`; screened: random-policy
+episodes kept by the oracle's trajectory classes, paper App. D.2, as our training data is, not as
+imitation's agent's rollouts are — `imitation_offline` learns from such episodes too), and the
+agent's greedy oracle return over 50 episodes with episode seeds 10^8..
+(`nmrm_ros.rl.evaluation.evaluate_agent`): our agent's last policy, as imitation's final PPO (the
+policy `train_agent` keeps, chosen with the oracle's return among others, is reported beside it).
 Seconds: wall time of the cell on one thread (training and agent; the judging not included).
 
 Resumes: each cell is bench/results/peers/imitation/<kind>_<task>_<teacher>_n<n>_s<r>.json; what

@@ -15,8 +15,10 @@ So the features are computed once per frame, when the environment steps (a datas
 and a reward model, an ensemble, a checkpoint, `nmrm check`, `nmrm explain` and the agents treat
 the task as a vector task: training costs what a state model costs. The encoder's weights are not
 in a checkpoint: the task spec (recorded in it) names them, so keep that file as it was trained
-with: a checkpoint records the file's SHA-256 (`weights_sha256`) when it is saved, and loading it
-where that file now holds other weights is refused (`mil.checkpoint.load_checkpoint`).
+with: a checkpoint records the file's SHA-256 (`encoder_sha256`) when the model is saved, and loading
+it where that file now holds other weights is refused (`mil.checkpoint.load_checkpoint`). A dataset
+does not record it yet, so a model trained after the file changed, from a dataset encoded before,
+is not caught.
 """
 
 from __future__ import annotations
