@@ -24,7 +24,7 @@ Cells (task, comparisons n, teacher, seed r):
   on the oracle's reward itself, observing the state only, `--timesteps` steps: what its agent
   could reach were its reward net perfect;
 - `csc_lstm`: our offline model from n comparisons of random-policy episodes (data seed r, the
-  preference grid's run, `bench/preferences.py`: the task's default model, feedback preferences),
+  preference grid's protocol, `bench/preferences.py`: the task's default model, feedback preferences),
   then our DQN agent on it (config/rl.yaml, 400 episodes, agent seed r);
 - `dqn_oracle`: our DQN agent on the oracle's reward with its hidden state (the oracle-with-hidden
   agent our issues compare with): what our agent reaches were our model perfect.
@@ -178,7 +178,6 @@ def run_ours(job: tuple) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    import preferences
     from nmrm_ros.rl import train_agent
 
     name = cell_name(kind, task, teacher, n, r)
@@ -190,9 +189,7 @@ def run_ours(job: tuple) -> dict:
                            **judge_ours(agent_dir, task, None), "seconds": seconds, "threads": 1,
                            "agent_episodes": AGENT_EPISODES,
                            "command": f"bench/imitation_peer.py --kinds dqn_oracle --tasks {task} --seeds {r}"})
-    grid = RUNS / "ours"  # the preference grid's layout: models in runs/preferences/<tag>/models/
-    model = preferences.run((task, "csc_lstm", teacher, n, r, {}, grid))
-    checkpoint = preferences.MODELS / grid.name / "models" / f"{preferences.run_name(task, 'csc_lstm', teacher, n, r)}.pt"
+    model, checkpoint = our_model(task, teacher, n, r)
     agent_dir = RUNS / "ours_agents" / name
     agent_seconds = train_once(agent_dir, lambda: train_agent(task, "model", checkpoint=checkpoint,
                                                               episodes=AGENT_EPISODES, seed=r, out=agent_dir,
@@ -206,6 +203,32 @@ def run_ours(job: tuple) -> dict:
            "command": f"bench/imitation_peer.py --kinds csc_lstm --tasks {task} --teachers {teacher} "
                       f"--comparisons {n} --seeds {r}"}
     return save(name, res)
+
+
+def our_model(task: str, teacher: str, n: int, r: int) -> tuple[dict, Path]:
+    """({"held": our metrics, "seconds": CPU seconds of training}, checkpoint) of our default model
+    from n comparisons of the teacher (the preference grid's protocol, bench/preferences.py): the
+    screened 5000 episodes of data seed r, n pairs drawn and answered with seed r, split r, weight
+    seeds r + 1000 j. A checkpoint already in runs/peers/models is reused."""
+    from nmrm_ros.datasets.cache import cached_dataset
+    from nmrm_ros.datasets.preference_teacher import SimulatedTeacher, with_preferences
+    from nmrm_ros.mil import Run, evaluate, fit, load_train_config
+
+    checkpoint = RUNS / "models" / cell_name("csc_lstm", task, teacher, n, r)
+    record = checkpoint.with_suffix(".seconds.json")
+    if checkpoint.with_suffix(".pt").is_file() and record.is_file():
+        run, seconds = Run.load(checkpoint), float(json.loads(record.read_text())["seconds"])
+    else:
+        knobs = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}[teacher]
+        ds = with_preferences(cached_dataset(task, 5000, r), n, SimulatedTeacher(**knobs), seed=r)
+        cfg = load_train_config(task, seed=r, feedback="preferences")
+        t0 = time.process_time()
+        run = fit(ds, "csc_lstm", cfg, members=cfg.members, split_seed=r,
+                  offsets=[1000 * j for j in range(cfg.members)], progress=False)
+        seconds = time.process_time() - t0
+        run.save(checkpoint)
+        record.write_text(json.dumps({"seconds": seconds}))
+    return {"held": evaluate(run.model, held_out(task)), "seconds": seconds}, checkpoint.with_suffix(".pt")
 
 
 def train_once(agent_dir: Path, train) -> float:

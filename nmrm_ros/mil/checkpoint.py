@@ -248,9 +248,9 @@ def check_encoder_weights(meta: CheckpointMeta, weights: Path) -> None:
     """CheckpointError where the frozen encoder's weights file that the checkpoint's task spec
     names now holds other weights than when the model was saved (its states would be another
     encoder's features); nothing where no encoder SHA-256 is recorded or the file is not here."""
-    from ..tasks.frozen_encoder import weights_sha256
+    from ..tasks.gym_task import encoder_weights_sha256
 
-    now = weights_sha256(meta.task) if meta.encoder_sha256 else None
+    now = encoder_weights_sha256(meta.task) if meta.encoder_sha256 else None
     if now is not None and now[1] != meta.encoder_sha256:
         raise CheckpointError(f"checkpoint {weights} was trained with the encoder weights {now[0]} of SHA-256 "
                               f"{meta.encoder_sha256[:12]}..., the file now holds {now[1][:12]}...: restore "

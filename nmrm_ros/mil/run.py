@@ -81,9 +81,9 @@ class Run:
         weights, info = checkpoint_paths(path)
         weights.parent.mkdir(parents=True, exist_ok=True)
         torch.save(self.model.state_dict(), weights)
-        from ..tasks.frozen_encoder import weights_sha256
+        from ..tasks.gym_task import encoder_weights_sha256
 
-        encoder = weights_sha256(self.meta.task)
+        encoder = encoder_weights_sha256(self.meta.task)
         self.meta = self.meta.replace(model=self.model.config, normalisation=normalisation_of(self.model),
                                       encoder_sha256=encoder[1] if encoder else self.meta.encoder_sha256,
                                       package_version=__version__, weights_sha256=sha256_of(weights), format=FORMAT,

@@ -16,7 +16,8 @@ and a reward model, an ensemble, a checkpoint, `nmrm check`, `nmrm explain` and 
 the task as a vector task: training costs what a state model costs. The encoder's weights are not
 in a checkpoint: the task spec (recorded in it) names them, so keep that file as it was trained
 with: a checkpoint records the file's SHA-256 (`encoder_sha256`) when the model is saved, and loading
-it where that file now holds other weights is refused (`mil.checkpoint.load_checkpoint`). A dataset
+it where that file now holds other weights is refused (`gym_task.encoder_weights_sha256`,
+`mil.checkpoint.load_checkpoint`). A dataset
 does not record it yet, so a model trained after the file changed, from a dataset encoded before,
 is not caught.
 """
@@ -98,26 +99,6 @@ class FrozenEncoder:
         if not np.all(np.isfinite(features)):
             raise self._error("its features hold NaN or inf")
         return features
-
-
-def weights_sha256(task: str | None) -> tuple[str, str] | None:
-    """(path, SHA-256) of the encoder weights file a task spec names (`encoder_weights=`), or None
-    where it names none or the file cannot be read (here: nothing to compare)."""
-    from .gym_task import TaskSpecError, is_task_spec, parse_task_spec
-
-    if not task or not is_task_spec(task):
-        return None
-    try:
-        weights = parse_task_spec(task).encoder_weights
-    except TaskSpecError:
-        return None
-    if not weights:
-        return None
-    path = Path(str(weights)).expanduser()
-    try:
-        return str(path), hashlib.sha256(path.read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 def _line(exc: BaseException, limit: int = 300) -> str:

@@ -376,3 +376,24 @@ def make_gym_task_env(task: str, render: bool = False) -> GymTaskEnv:
                             f"(its episodes can be labelled, modelled and exported; to run episodes or an agent, "
                             f"give the task spec of an environment with the same state)")
     return GymTaskEnv(_construct(spec, render), spec)
+
+
+def encoder_weights_sha256(task: str | None) -> tuple[str, str] | None:
+    """(path, SHA-256) of the frozen encoder's weights file a task spec names (`encoder_weights=`),
+    or None where it names none or the file cannot be read (nothing to compare)."""
+    import hashlib
+    from pathlib import Path
+
+    if not task or not is_task_spec(task):
+        return None
+    try:
+        weights = parse_task_spec(task).encoder_weights
+    except TaskSpecError:
+        return None
+    if not weights:
+        return None
+    path = Path(str(weights)).expanduser()
+    try:
+        return str(path), hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
