@@ -66,7 +66,9 @@ RUNNER = ROOT / "bench" / "peers" / "imitation_run.py"
 TASKS = ("key", "timer", "charger")
 KINDS = ("imitation", "imitation_ensemble", "imitation_offline", "ppo_oracle", "csc_lstm", "dqn_oracle")
 REFERENCES = ("ppo_oracle", "dqn_oracle")  # agents on the oracle's reward: no teacher, no comparisons
-TEACHERS = ("perfect", "noisy")
+#: the simulated teacher's knobs (as bench/preferences.py and bench/peers/imitation_run.py)
+TEACHER_KNOBS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}
+TEACHERS = tuple(TEACHER_KNOBS)
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 EVAL_EPISODES, AGENT_EPISODES = 50, 400
 
@@ -172,7 +174,7 @@ def run_imitation(job: tuple) -> dict:
 
 
 def run_ours(job: tuple) -> dict:
-    """Our CSC model from n comparisons (the preference grid's run) and our DQN agent on it; or
+    """Our CSC model from n comparisons (`our_model`) and our DQN agent on it; or
     (`dqn_oracle`) our DQN agent on the oracle with its hidden state."""
     kind, task, teacher, n, r, _, _ = job
     import torch
@@ -219,8 +221,7 @@ def our_model(task: str, teacher: str, n: int, r: int) -> tuple[dict, Path]:
     if checkpoint.with_suffix(".pt").is_file() and record.is_file():
         run, seconds = Run.load(checkpoint), float(json.loads(record.read_text())["seconds"])
     else:
-        knobs = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}[teacher]
-        ds = with_preferences(cached_dataset(task, 5000, r), n, SimulatedTeacher(**knobs), seed=r)
+        ds = with_preferences(cached_dataset(task, 5000, r), n, SimulatedTeacher(**TEACHER_KNOBS[teacher]), seed=r)
         cfg = load_train_config(task, seed=r, feedback="preferences")
         t0 = time.process_time()
         run = fit(ds, "csc_lstm", cfg, members=cfg.members, split_seed=r,
