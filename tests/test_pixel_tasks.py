@@ -463,10 +463,18 @@ def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module
     kept = (tmp_path / "enc.pt").read_bytes()
     torch.manual_seed(1)
     torch.save(type(encoder_module)().state_dict(), tmp_path / "enc.pt")
-    with pytest.raises(CheckpointError, match="was trained with the encoder weights .*enc.pt of SHA-256 .*restore"):
+    with pytest.raises(CheckpointError, match="trained on states of another encoder .*enc.pt were of SHA-256 .*restore"):
         Run.load(path)
+    # the dataset records it too (its states are those features): training on it is refused, and
+    # a cached copy is stale
+    from nmrm_ros.datasets.cache import stale_data
+
+    assert ds.meta["encoder_sha256"] == hashlib.sha256(kept).hexdigest()
+    with pytest.raises(ValueError, match="features of another encoder .*make the dataset again"):
+        fit(ds, "csc_lstm", load_train_config(task, max_epochs=1, threads=1), progress=False)
+    assert stale_data(ds.meta, task) and "now holds" in stale_data(ds.meta, task)[0]
     (tmp_path / "enc.pt").write_bytes(kept)
-    assert Run.load(path).model.config.input_size == 6
+    assert Run.load(path).model.config.input_size == 6 and stale_data(ds.meta, task) == []
 
 
 @pytest.mark.parametrize("tail, message", [

@@ -42,10 +42,18 @@ def stale_data(recorded_meta: dict | None, task: str) -> list[str]:
     """How a cached dataset (its meta) or a model's recorded training data (a checkpoint's
     `meta.data.meta`) differs from what today's generator makes for `task`: Lunar Lander's scripted
     plans are versioned (`nmrm_ros.tasks.lunar_lander.SCRIPTED_PLANS`; data without a version are
-    version 1). Empty when current, or when the data were not generated (a bag, a file of the user's)."""
-    if not recorded_meta or recorded_meta.get("policy") != "scripted":  # only Lunar Lander's pools are scripted
+    version 1); a frozen encoder's states are of the weights file whose SHA-256 the data recorded
+    (`encoder_sha256`; `gym_task.encoder_weights_changed`). Empty when current, or when the data were
+    not generated (a bag, a file of the user's)."""
+    if not recorded_meta:
         return []
+    from ..tasks.gym_task import encoder_weights_changed
+
+    changed = encoder_weights_changed(task, recorded_meta.get("encoder_sha256"))
+    stale = [changed] if changed else []
+    if recorded_meta.get("policy") != "scripted":  # only Lunar Lander's pools are scripted
+        return stale
     from ..tasks.lunar_lander import SCRIPTED_PLANS
 
     then = recorded_meta.get("plans", 1)
-    return [] if then == SCRIPTED_PLANS else [f"scripted plans {then} -> {SCRIPTED_PLANS}"]
+    return stale + ([] if then == SCRIPTED_PLANS else [f"scripted plans {then} -> {SCRIPTED_PLANS}"])

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..oracles import Oracle, OracleError
 from ..tasks import make_env, task_info
-from ..tasks.gym_task import TaskSpecError
+from ..tasks.gym_task import TaskSpecError, encoder_weights_sha256
 from .trajectories import TrajectoryDataset
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -120,7 +120,7 @@ def screen_by_return(task: str, oracle: Oracle, n: int, pool_size: int | None = 
     keep, cap = balanced_keep(classes, n)
     ds = everything.subset(keep)
     horizon = int(ds.lengths.max())
-    meta = {"seed": seed, "generator": "return_screening", "policy": policy_name, "pool": pool_size,
+    meta = {**everything.meta, "seed": seed, "generator": "return_screening", "policy": policy_name, "pool": pool_size,
             "bins": bins, "cap_per_bin": cap, "oracle": getattr(oracle, "spec", task),
             "seconds": time.perf_counter() - start}
     return replace(ds, states=ds.states[:, :horizon], rewards=ds.rewards[:, :horizon],
@@ -133,8 +133,14 @@ def label_rollouts(task: str, oracle: Oracle, pool: list, meta: dict | None = No
     """Every episode of `pool` (a list of (states (L + 1, d), actions (L, A)[, privileged (L + 1,
     p)]), as `rollout_episodes` gives) labelled by `oracle` (on the privileged states where there
     are some), in order: states zero-padded to the longest episode, the last observation of each
-    in `final_states`; states that are all pixels are kept as uint8."""
+    in `final_states`; states that are all pixels are kept as uint8. A frozen encoder's states
+    record its weights file's SHA-256 (meta `encoder_sha256`: training and the dataset cache refuse
+    them once the file holds other weights)."""
     info = task_info(task)
+    meta = dict(meta or {})
+    encoder = encoder_weights_sha256(task)
+    if encoder:
+        meta["encoder_sha256"] = encoder[1]
     horizon = max(len(item[1]) for item in pool)
     width = pool[0][1].shape[1]
     dtype = np.uint8 if info.image_values and info.image_values == info.state_size else np.float32
@@ -151,4 +157,4 @@ def label_rollouts(task: str, oracle: Oracle, pool: list, meta: dict | None = No
             privileged[i, : len(a)] = p[0][:-1]
     labels = oracle.label(states if privileged is None else privileged, actions, lengths)
     return TrajectoryDataset(task, states, lengths, labels.returns, labels.rewards, labels.hidden,
-                             actions, final, None, dict(meta or {}), privileged=privileged)
+                             actions, final, None, meta, privileged=privileged)

@@ -248,13 +248,12 @@ def check_encoder_weights(meta: CheckpointMeta, weights: Path) -> None:
     """CheckpointError where the frozen encoder's weights file that the checkpoint's task spec
     names now holds other weights than when the model was saved (its states would be another
     encoder's features); nothing where no encoder SHA-256 is recorded or the file is not here."""
-    from ..tasks.gym_task import encoder_weights_sha256
+    from ..tasks.gym_task import encoder_weights_changed
 
-    now = encoder_weights_sha256(meta.task) if meta.encoder_sha256 else None
-    if now is not None and now[1] != meta.encoder_sha256:
-        raise CheckpointError(f"checkpoint {weights} was trained with the encoder weights {now[0]} of SHA-256 "
-                              f"{meta.encoder_sha256[:12]}..., the file now holds {now[1][:12]}...: restore "
-                              f"that file, or train the model again on states of the new encoder")
+    changed = encoder_weights_changed(meta.task, meta.encoder_sha256)
+    if changed:
+        raise CheckpointError(f"checkpoint {weights} was trained on states of another encoder ({changed}): "
+                              f"restore that file, or train the model again on states of the new encoder")
 
 
 def load_checkpoint(path: str | Path, architecture: str | None = None,

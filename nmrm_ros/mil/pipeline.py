@@ -9,6 +9,7 @@ import numpy as np
 
 from ..datasets.prefixes import cut_episodes
 from ..datasets.trajectories import TrajectoryDataset
+from ..tasks.gym_task import encoder_weights_changed
 from .checkpoint import DataInfo, DataSource, EnsembleInfo
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
@@ -58,7 +59,12 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     (K > 1): "all" serves every member; "best" keeps only the one best on validation (a 1-member
     ensemble); "fitted" (feedback returns) leaves out the members that did not fit
     (`fitted.fitted_members`). When members are left out the checkpoint records the candidates trained
-    and which were kept."""
+    and which were kept. ValueError (one line) for a dataset of a frozen encoder's features whose
+    weights file now holds other weights (`gym_task.encoder_weights_changed`)."""
+    changed = encoder_weights_changed(ds.task, ds.meta.get("encoder_sha256"))
+    if changed:
+        raise ValueError(f"the dataset's states are features of another encoder ({changed}): "
+                         f"restore that file, or make the dataset again with the new encoder")
     trained_on = cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed) if cfg.prefix_fraction else ds
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
     seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]

@@ -83,9 +83,11 @@ class Run:
         torch.save(self.model.state_dict(), weights)
         from ..tasks.gym_task import encoder_weights_sha256
 
-        encoder = encoder_weights_sha256(self.meta.task)
+        # a frozen encoder's weights: the dataset's record first (its states are those features)
+        encoder = (self.meta.data.meta or {}).get("encoder_sha256") or encoder_weights_sha256(self.meta.task)
+        encoder = encoder[1] if isinstance(encoder, tuple) else encoder or self.meta.encoder_sha256
         self.meta = self.meta.replace(model=self.model.config, normalisation=normalisation_of(self.model),
-                                      encoder_sha256=encoder[1] if encoder else self.meta.encoder_sha256,
+                                      encoder_sha256=encoder,
                                       package_version=__version__, weights_sha256=sha256_of(weights), format=FORMAT,
                                       ensemble=dataclasses.replace(self.meta.ensemble, members=self.model.members,
                                                                    serving_member=int(self.model.serving_member)))

@@ -378,6 +378,16 @@ def make_gym_task_env(task: str, render: bool = False) -> GymTaskEnv:
     return GymTaskEnv(_construct(spec, render), spec)
 
 
+def encoder_weights_changed(task: str | None, recorded: str | None) -> str | None:
+    """How the frozen encoder's weights file of `task` differs from the one whose SHA-256
+    `recorded` was taken (a dataset's or a checkpoint's: their states are its features), in words;
+    None where nothing was recorded, the spec names no file, the file is not here, or it is the same."""
+    now = encoder_weights_sha256(task) if recorded else None
+    if now is None or now[1] == recorded:
+        return None
+    return f"the encoder weights {now[0]} were of SHA-256 {recorded[:12]}..., the file now holds {now[1][:12]}..."
+
+
 def encoder_weights_sha256(task: str | None) -> tuple[str, str] | None:
     """(path, SHA-256) of the frozen encoder's weights file a task spec names (`encoder_weights=`),
     or None where it names none or the file cannot be read (nothing to compare)."""
