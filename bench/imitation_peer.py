@@ -26,6 +26,8 @@ Cells (task, comparisons n, teacher, seed r):
 - `csc_lstm`: our offline model from n comparisons of random-policy episodes (data seed r, the
   preference grid's protocol, `bench/preferences.py`: the task's default model, feedback preferences),
   then our DQN agent on it (config/rl.yaml, 400 episodes, agent seed r);
+- `transformer`: the same with our fifth architecture, the causal transformer (`--arch transformer`,
+  docs/guide/models.md), instead of the CSC LSTM;
 - `dqn_oracle`: our DQN agent on the oracle's reward with its hidden state (the oracle-with-hidden
   agent our issues compare with): what our agent reaches were our model perfect.
 Teachers: our `SimulatedTeacher`, perfect (beta = inf) or noisy (beta = 1, mistake 0.1), for both.
@@ -64,7 +66,8 @@ VENV = RUNS / "imitation-venv"
 REQUIREMENTS = ROOT / "bench" / "peers" / "imitation-requirements.txt"
 RUNNER = ROOT / "bench" / "peers" / "imitation_run.py"
 TASKS = ("key", "timer", "charger")
-KINDS = ("imitation", "imitation_ensemble", "imitation_offline", "ppo_oracle", "csc_lstm", "dqn_oracle")
+KINDS = ("imitation", "imitation_ensemble", "imitation_offline", "ppo_oracle", "csc_lstm", "transformer", "dqn_oracle")
+OURS = ("csc_lstm", "transformer", "dqn_oracle")  # run in this venv; the others in imitation's
 REFERENCES = ("ppo_oracle", "dqn_oracle")  # agents on the oracle's reward: no teacher, no comparisons
 #: the simulated teacher's knobs (as bench/preferences.py and bench/peers/imitation_run.py)
 TEACHER_KNOBS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}
@@ -174,7 +177,7 @@ def run_imitation(job: tuple) -> dict:
 
 
 def run_ours(job: tuple) -> dict:
-    """Our CSC model from n comparisons (`our_model`) and our DQN agent on it; or
+    """Our model (CSC LSTM or transformer) from n comparisons (`our_model`) and our DQN agent on it; or
     (`dqn_oracle`) our DQN agent on the oracle with its hidden state."""
     kind, task, teacher, n, r, _, _ = job
     import torch
@@ -191,7 +194,7 @@ def run_ours(job: tuple) -> dict:
                            **judge_ours(agent_dir, task, None), "seconds": seconds, "threads": 1,
                            "agent_episodes": AGENT_EPISODES,
                            "command": f"bench/imitation_peer.py --kinds dqn_oracle --tasks {task} --seeds {r}"})
-    model, checkpoint = our_model(task, teacher, n, r)
+    model, checkpoint = our_model(kind, task, teacher, n, r)
     agent_dir = RUNS / "ours_agents" / name
     agent_seconds = train_once(agent_dir, lambda: train_agent(task, "model", checkpoint=checkpoint,
                                                               episodes=AGENT_EPISODES, seed=r, out=agent_dir,
@@ -202,21 +205,21 @@ def run_ours(job: tuple) -> dict:
            **judge_ours(agent_dir, task, checkpoint),
            "model_cpu_seconds": model["seconds"], "agent_seconds": agent_seconds,
            "seconds": model["seconds"] + agent_seconds, "threads": 1, "agent_episodes": AGENT_EPISODES,
-           "command": f"bench/imitation_peer.py --kinds csc_lstm --tasks {task} --teachers {teacher} "
+           "command": f"bench/imitation_peer.py --kinds {kind} --tasks {task} --teachers {teacher} "
                       f"--comparisons {n} --seeds {r}"}
     return save(name, res)
 
 
-def our_model(task: str, teacher: str, n: int, r: int) -> tuple[dict, Path]:
+def our_model(arch: str, task: str, teacher: str, n: int, r: int) -> tuple[dict, Path]:
     """({"held": our metrics, "seconds": CPU seconds of training}, checkpoint) of our default model
-    from n comparisons of the teacher (the preference grid's protocol, bench/preferences.py): the
+    of architecture `arch` (the task's training config) from n comparisons of the teacher (the preference grid's protocol, bench/preferences.py): the
     screened 5000 episodes of data seed r, n pairs drawn and answered with seed r, split r, weight
     seeds r + 1000 j. A checkpoint already in runs/peers/models is reused."""
     from nmrm_ros.datasets.cache import cached_dataset
     from nmrm_ros.datasets.preference_teacher import SimulatedTeacher, with_preferences
     from nmrm_ros.mil import Run, evaluate, fit, load_train_config
 
-    checkpoint = RUNS / "models" / cell_name("csc_lstm", task, teacher, n, r)
+    checkpoint = RUNS / "models" / cell_name(arch, task, teacher, n, r)
     record = checkpoint.with_suffix(".seconds.json")
     if checkpoint.with_suffix(".pt").is_file() and record.is_file():
         run, seconds = Run.load(checkpoint), float(json.loads(record.read_text())["seconds"])
@@ -224,7 +227,7 @@ def our_model(task: str, teacher: str, n: int, r: int) -> tuple[dict, Path]:
         ds = with_preferences(cached_dataset(task, 5000, r), n, SimulatedTeacher(**TEACHER_KNOBS[teacher]), seed=r)
         cfg = load_train_config(task, seed=r, feedback="preferences")
         t0 = time.process_time()
-        run = fit(ds, "csc_lstm", cfg, members=cfg.members, split_seed=r,
+        run = fit(ds, arch, cfg, members=cfg.members, split_seed=r,
                   offsets=[1000 * j for j in range(cfg.members)], progress=False)
         seconds = time.process_time() - t0
         run.save(checkpoint)
@@ -271,13 +274,13 @@ def save(name: str, res: dict) -> dict:
 
 
 def run_cell(job: tuple) -> dict:
-    return run_ours(job) if job[0] in ("csc_lstm", "dqn_oracle") else run_imitation(job)
+    return run_ours(job) if job[0] in OURS else run_imitation(job)
 
 
 def report() -> str:
     cells = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("*.json"))]
     lines = ["# bench/imitation_peer.py: imitation 1.0.1's preference comparisons (its defaults; `imitation_ensemble`: "
-             "its reward_ensemble config) vs our CSC LSTM, same teacher, same number of comparisons n",
+             "its reward_ensemble config) vs our CSC LSTM and transformer, same teacher, same number of comparisons n",
              "# held-out: 2000 screened episodes of data seed 999; agent: greedy oracle return over 50 episodes "
              "(seeds 10^8..); mean [worst] over seeds; s: wall seconds per cell on one thread"]
     lines.append(f"{'task':8} {'teacher':8} {'n':>5} {'model':19} {'seeds':8} {'pref. accuracy':>16} "
