@@ -59,6 +59,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nmrm_ros.datasets.preference_teacher import TEACHERS as NAMED_TEACHERS
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "peers" / "imitation"
 RUNS = ROOT / "runs" / "peers"
@@ -69,8 +71,7 @@ TASKS = ("key", "timer", "charger")
 KINDS = ("imitation", "imitation_ensemble", "imitation_offline", "ppo_oracle", "csc_lstm", "transformer", "dqn_oracle")
 OURS = ("csc_lstm", "transformer", "dqn_oracle")  # run in this venv; the others in imitation's
 REFERENCES = ("ppo_oracle", "dqn_oracle")  # agents on the oracle's reward: no teacher, no comparisons
-#: the simulated teacher's knobs (as bench/preferences.py and bench/peers/imitation_run.py)
-TEACHER_KNOBS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}
+TEACHER_KNOBS = NAMED_TEACHERS  # the simulated teacher's knobs, also read by the runner in imitation's venv
 TEACHERS = tuple(TEACHER_KNOBS)
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 EVAL_EPISODES, AGENT_EPISODES = 50, 400

@@ -41,13 +41,14 @@ import numpy as np
 
 from nmrm_ros.paper import mean_seconds
 from nmrm_ros.datasets.cache import cached_dataset
+from nmrm_ros.datasets.preference_teacher import TEACHERS as NAMED_TEACHERS
 from nmrm_ros.mil.training import parse_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results" / "preferences"
 TASKS = ("key", "timer", "charger", "moving")
 ARCHS = ("csc_lstm", "instance_nn")
-TEACHERS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}, "returns": None}
+TEACHERS = {**NAMED_TEACHERS, "returns": None}  # returns: n return labels instead of comparisons
 PAIRS = (250, 500, 1000, 2000, 4000)
 HELD_OUT_SEED, HELD_OUT_N = 999, 2000
 MODELS = ROOT / "runs" / "preferences"  # checkpoints of the runs (not in git)

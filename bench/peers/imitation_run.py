@@ -17,7 +17,7 @@ instead of its agent's, then its agent on the learnt reward; `--true-reward`: no
 its agent on the oracle's reward (a reference). Two settings are ours: the environment
 runs in one process (`environment.parallel=False`, so that a run keeps to one core as ours do) and
 the teacher: imitation's gatherer class is replaced by `TeacherGatherer`, which asks our
-`SimulatedTeacher` (perfect: beta = inf; noisy: beta = 1, mistake 0.1, as bench/preferences.py) to
+`SimulatedTeacher` (perfect: beta = inf; noisy: beta = 1, mistake 0.1: `TEACHERS` of its module) to
 compare the two fragments' oracle returns. Our navigation episodes are 100 steps, so a fragment
 is a whole episode and a comparison is the one our teacher makes.
 
@@ -46,7 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
-TEACHERS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}
+from nmrm_ros.datasets.preference_teacher import TEACHERS  # the teachers' knobs, as our benches use them
+
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -216,7 +217,7 @@ def main(argv=None) -> None:
     import imitation
 
     result = {
-        "task": args.task, "teacher": args.teacher, "teacher_knobs": {k: v for k, v in TEACHERS[args.teacher].items()},
+        "task": args.task, "teacher": args.teacher, "teacher_knobs": dict(TEACHERS[args.teacher]),
         "comparisons": args.comparisons, "seed": args.seed, "timesteps": args.timesteps,
         "variant": ("true_reward" if args.true_reward else "offline" if args.trajectories
                     else "ensemble" if args.ensemble else "defaults"), "imitation": imitation.__version__,

@@ -24,6 +24,11 @@ import numpy as np
 from .trajectories import TrajectoryDataset
 
 
+#: The named teachers the benchmarks compare (their knobs; `SimulatedTeacher(**TEACHERS[name])`):
+#: perfect (always the better return) and noisy (beta 1, one answer in ten flipped).
+TEACHERS = {"perfect": {}, "noisy": {"beta": 1.0, "mistake": 0.1}}
+
+
 @dataclass(frozen=True)
 class SimulatedTeacher:
     """B-Pref's teacher knobs (defaults: a perfect teacher)."""
