@@ -84,8 +84,10 @@ class Run:
         from ..tasks.gym_task import encoder_weights_sha256
 
         # a frozen encoder's weights: the dataset's record first (its states are those features)
-        encoder = (self.meta.data.meta or {}).get("encoder_sha256") or encoder_weights_sha256(self.meta.task)
-        encoder = encoder[1] if isinstance(encoder, tuple) else encoder or self.meta.encoder_sha256
+        encoder = (self.meta.data.meta or {}).get("encoder_sha256")
+        if not encoder:  # data of older versions: the file's, as it is now
+            now = encoder_weights_sha256(self.meta.task)
+            encoder = now[1] if now else self.meta.encoder_sha256
         self.meta = self.meta.replace(model=self.model.config, normalisation=normalisation_of(self.model),
                                       encoder_sha256=encoder,
                                       package_version=__version__, weights_sha256=sha256_of(weights), format=FORMAT,
