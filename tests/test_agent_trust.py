@@ -179,6 +179,16 @@ def test_collapse_report_on_a_scripted_curve():
     assert report.judged_by == "learnt" and report.dip is not None
     # a run that never learnt did not collapse
     assert late_dip(np.zeros(400), 50) is None
+    # ... nor one whose best window is within the noise of its random first episodes (Key, an agent
+    # on a model whose served state forgot the key: 0.56 at first, 1.52 at best, then 0): it is
+    # said to have learnt nothing
+    lucky = np.where(np.arange(400) % 20 == 0, 10.0, 0.0)  # a random policy's rare paid episodes
+    lucky[130:180] = np.where(np.arange(50) % 7 == 0, 10.0, 0.0)  # a lucky stretch: 1.4 against 0.5
+    lucky[200:] = 0.0
+    report = collapse_report(_curve(lucky, q=np.linspace(0, 190, 400)), bound_high=287.0)
+    assert not report.collapsed and not report.learnt
+    assert report.summary().startswith("did not learn: the best 50 episodes' oracle return")
+    assert collapse_report(_curve(dipped)).learnt and collapse_report(_curve(healthy)).learnt
 
 
 def test_check_failure_names_the_next_command():

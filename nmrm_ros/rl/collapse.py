@@ -4,7 +4,9 @@ Two signs, from a run's learning curve (`LearningCurve`) and its agent's value b
 
 - **late dip**: over windows of `window` consecutive episodes (50, or a quarter of a shorter run),
   a window in the second half whose mean return fell back by more than half of what the run had
-  gained before it (gain: the best earlier window's mean minus the first window's). Judged on the
+  gained before it (gain: the best earlier window's mean minus the first window's). A gain within
+  the noise of the first window (at most `NOISE_SES` standard errors of its mean) is no learning:
+  a run that never learnt did not collapse, it is reported as not having learnt. Judged on the
   oracle's (labeller's) return where the curve has one, else on the learnt return.
 - **values beyond their bound**: an episode whose mean max_a Q left the bound that the rewards
   allow (`value_bound`) by more than 1%.
@@ -15,6 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+#: a gain of at most this many standard errors of the first window's mean is noise, not learning
+#: (the random episodes of Key's first 50: mean 0.56, standard error 0.34; a run whose best window
+#: earned 1.52 had learnt nothing)
+NOISE_SES = 4.0
 
 
 @dataclass
@@ -29,6 +36,8 @@ class CollapseReport:
     judged_by: str
     window: int
     kept_episode: int | None = None  # the kept policy's snapshot (None: the last policy)
+    best: tuple | None = None  # (best window mean, its first episode, the first window's mean); None: no window
+    learnt: bool = True  # the best window beyond the noise of the first (see NOISE_SES)
 
     @property
     def q_beyond_bound(self) -> bool:
@@ -42,9 +51,14 @@ class CollapseReport:
     def summary(self) -> str:
         kept = ("the last policy is kept" if self.kept_episode is None
                 else f"kept the policy of episode {self.kept_episode} (policy.zip; the last: last_policy.zip)")
+        q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}" + (
+            "" if self.bound_high is None else f" within its bound {self.bound_high:.3g}")
+        if not self.collapsed and not self.learnt and self.best is not None:
+            best, at, first = self.best
+            return (f"did not learn: the best {self.window} episodes' {self.judged_by} return ({best:.3g}, "
+                    f"episodes {at}-{at + self.window - 1}) is within the noise of the first {self.window}'s "
+                    f"({first:.3g}){q}; {kept}")
         if not self.collapsed:
-            q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}" + (
-                "" if self.bound_high is None else f" within its bound {self.bound_high:.3g}")
             return f"no collapse: no late dip in the {self.judged_by} return{q}; {kept}"
         parts = []
         if self.dip is not None:
@@ -58,29 +72,47 @@ class CollapseReport:
     def to_dict(self) -> dict:
         return {"collapsed": self.collapsed, "late_dip": self.dip, "q_peak": self.q_peak,
                 "value_bound": self.bound_high, "q_beyond_bound": self.q_beyond_bound,
-                "judged_by": self.judged_by, "window": self.window, "summary": self.summary()}
+                "judged_by": self.judged_by, "window": self.window, "learnt": self.learnt,
+                "summary": self.summary()}
 
 
 def _windows(values: np.ndarray, window: int) -> np.ndarray:
     return np.convolve(values, np.ones(window) / window, mode="valid")
 
 
+def noise_of_first(returns: np.ndarray, window: int) -> float:
+    """What the best window must gain over the first to count as learning: `NOISE_SES` standard
+    errors of the first window's mean (its returns' standard deviation / sqrt(window))."""
+    return NOISE_SES * float(np.std(returns[:window])) / np.sqrt(window)
+
+
+def best_window(returns, window: int) -> tuple | None:
+    """(best window mean, its start, the first window's mean), or None for a run shorter than a window."""
+    returns = np.asarray(returns, dtype=float)
+    if len(returns) < window:
+        return None
+    means = _windows(returns, window)
+    at = int(np.argmax(means))
+    return float(means[at]), at, float(means[0])
+
+
 def late_dip(returns, window: int) -> tuple | None:
     """(best earlier mean, its start, lowest later mean, its start) of the first window in the
-    second half that lost more than half the gain before it, else None."""
+    second half that lost more than half the gain before it, else None. A gain within the noise
+    of the first window (`noise_of_first`) is not one."""
     returns = np.asarray(returns, dtype=float)
     n = len(returns)
     if n < 2 * window:
         return None
     means = _windows(returns, window)
-    first = means[0]
+    first, noise = means[0], noise_of_first(returns, window)
     for start in range(max(n // 2, window), len(means)):
         earlier = means[: start - window + 1]  # windows that end before this one starts
         if earlier.size == 0:
             continue
         best_at = int(np.argmax(earlier))
         gain = earlier[best_at] - first
-        if gain > 0 and means[start] < first + 0.5 * gain:
+        if gain > max(noise, 0.0) and means[start] < first + 0.5 * gain:
             low_at = start + int(np.argmin(means[start:]))
             return float(earlier[best_at]), best_at, float(means[low_at]), low_at
     return None
@@ -96,5 +128,7 @@ def collapse_report(curve, bound_high: float | None = None, kept_episode: int | 
     judged_by = "oracle" if len(oracle) and np.isfinite(oracle).all() else "learnt"
     returns = oracle if judged_by == "oracle" else np.array([r.learnt_return for r in records], float)
     q = [r.q["q_max"] for r in records if r.q and np.isfinite(r.q.get("q_max", np.nan))]
+    best = best_window(returns, window)
+    learnt = best is None or best[0] - best[2] > noise_of_first(returns, window)
     return CollapseReport(late_dip(returns, window), max(q) if q else None, bound_high, judged_by,
-                          window, kept_episode)
+                          window, kept_episode, best, learnt)
