@@ -138,3 +138,33 @@ def test_check_runs_on_a_checkpoint(small_key_checkpoint):
     assert res.returncode in (0, 1) and "Traceback" not in res.stderr, res.stderr
     assert "memory: the served state separates" in res.stdout
     assert "reward hacking: a short agent's greedy episodes are paid" in res.stdout
+
+
+def test_check_reads_a_model_of_comparisons_in_the_oracles_units(small_key_checkpoint, tmp_path):
+    """A model of comparisons pays on a scale of its own: the hacking check maps its returns to the
+    oracle's units (fitted on screened episodes) instead of failing it for its scale."""
+    import numpy as np
+
+    from nmrm_ros.mil.calibration import Calibration, calibrate
+    from nmrm_ros.mil.run import Run
+    from nmrm_ros.rl.acceptance import HackingCheck, units_map
+
+    run = Run.load(small_key_checkpoint)
+    assert run.meta.return_units
+    k = run.model.members
+    # the same model paying 3 r' - 0.1 per step, as if learnt from comparisons
+    tripled = calibrate(run.model, Calibration(np.full(k, 1 / 3), np.full(k, 0.1 / 3), 0))
+    prefs = run.replace(model=tripled, train_config={**run.meta.train_config, "feedback": "preferences"})
+    prefs.save(tmp_path / "prefs")
+    model, meta = load_checkpoint(tmp_path / "prefs")
+    assert not meta.return_units
+    assert meta.replace(calibration={"gain": [1.0]}).return_units  # calibrated since: units again
+    base, mapped = units_map(run.model, "key", trajectories=60, seed=3), units_map(model, "key", trajectories=60, seed=3)
+    assert mapped.gain == pytest.approx(3 * base.gain, rel=1e-4)
+    assert mapped.bias == pytest.approx(3 * base.bias - 0.1, abs=1e-4)
+    learnt = np.array([30.0, 3.0])
+    assert mapped.oracle_units(learnt, np.array([100, 100])) == pytest.approx((learnt + 0.1 * 100 - 3 * base.bias * 100)
+                                                                              / (3 * base.gain), rel=1e-4)
+    line = HackingCheck(10.0, 10.0, 0.0, 0.0, 1.0, 10.0, 5, mapped).summary()
+    assert line.startswith("reward hacking (the model learnt from comparisons, so its returns are read in the "
+                           "oracle's units: R' = ") and "\n" not in line

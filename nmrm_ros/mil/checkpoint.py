@@ -173,6 +173,13 @@ class CheckpointMeta:
         (config/mil_training.yaml, per task, chosen by the agents it gave), else the default."""
         return check_served_state(self.train_config.get("served_state") or DEFAULT_SERVED_STATE)
 
+    @property
+    def return_units(self) -> bool:
+        """Whether the model pays in its labels' units: False for a model trained from comparisons
+        alone and not calibrated since (comparisons fix the returns only up to a scale and an
+        offset; `nmrm calibrate`)."""
+        return self.calibration is not None or self.train_config.get("feedback", "returns") != "preferences"
+
     def replace(self, **changes) -> "CheckpointMeta":
         return dataclasses.replace(self, **changes)
 

@@ -24,6 +24,12 @@ look at the model from the agent's side, on the model's task with its oracle:
 A check passes when at least `min_separated` (90%) of the pairs are separated, and when the agent's
 mean gap |learnt - oracle| is within max(3 x the model's return RMSE on random-policy episodes, 5%
 of the oracle's return scale).
+
+A model of comparisons that was not calibrated pays on a scale and with an offset of its own (Key,
+4000 perfect comparisons: ~3.1 r + const per step of the oracle's r), so its learnt returns are
+compared in the oracle's units: R' = a R + b L (L: the episode's length) is fitted by least
+squares on screened episodes of the task (`units_map`), and the check reads (R' - b L) / a.
+Without that, every such model failed the check by its scale alone.
 """
 
 from __future__ import annotations
@@ -62,8 +68,25 @@ class MemoryCheck:
 
 
 @dataclass
+class UnitsMap:
+    """A model's returns against the oracle's on screened episodes: R' = gain R + bias L."""
+
+    gain: float
+    bias: float  # per step
+    episodes: int
+
+    def oracle_units(self, learnt: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        return (np.asarray(learnt, float) - self.bias * np.asarray(lengths, float)) / self.gain
+
+    def summary(self) -> str:
+        return (f"the model learnt from comparisons, so its returns are read in the oracle's units: "
+                f"R' = {self.gain:.3g} R {self.bias:+.3g} per step, fitted on {self.episodes} screened episodes")
+
+
+@dataclass
 class HackingCheck:
-    """Mean learnt and oracle returns of the greedy agent's episodes and of random-policy ones."""
+    """Mean learnt and oracle returns of the greedy agent's episodes and of random-policy ones
+    (learnt returns in the oracle's units where `units` maps them)."""
 
     agent_learnt: float
     agent_oracle: float
@@ -72,6 +95,7 @@ class HackingCheck:
     random_rmse: float
     scale: float
     episodes: int
+    units: UnitsMap | None = None
 
     @property
     def gap(self) -> float:
@@ -87,7 +111,8 @@ class HackingCheck:
 
     def summary(self) -> str:
         verdict = "PASS" if self.passed else "FAIL: the agent learnt where the model is wrong"
-        return (f"reward hacking: a short agent's greedy episodes are paid {self.agent_learnt:.2f} by the "
+        units = "" if self.units is None else f" ({self.units.summary()})"
+        return (f"reward hacking{units}: a short agent's greedy episodes are paid {self.agent_learnt:.2f} by the "
                 f"model, {self.agent_oracle:.2f} by the oracle (gap {self.gap:+.2f}, tolerance "
                 f"{self.tolerance:.2f}); random episodes {self.random_learnt:.2f} vs {self.random_oracle:.2f} "
                 f"(return RMSE {self.random_rmse:.2f}): {verdict}")
@@ -151,17 +176,45 @@ def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, s
                        _separated(served[:, :k], pairs, separation_tol, min_distance, rng))
 
 
-def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray]:
-    """(learnt returns, oracle returns) of `episodes` episodes of `env` under `act`."""
-    learnt, oracle = [], []
+def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(learnt returns, oracle returns, lengths) of `episodes` episodes of `env` under `act`."""
+    learnt, oracle, lengths = [], [], []
     obs, _ = env.reset(seed=seed)
+    steps = 0
     while len(learnt) < episodes:
         obs, _, terminated, truncated, info = env.step(act(obs))
+        steps += 1
         if terminated or truncated:
             learnt.append(info["learnt_return"])
             oracle.append(info["oracle_return"])
+            lengths.append(steps)
+            steps = 0
             obs, _ = env.reset()
-    return np.asarray(learnt), np.asarray(oracle)
+    return np.asarray(learnt), np.asarray(oracle), np.asarray(lengths)
+
+
+def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, oracle: str = "") -> UnitsMap:
+    """R' = gain R + bias L fitted by least squares on `trajectories` screened episodes of `task`
+    (data seed `seed`): R' the model's return (its members' mean, as served), R the oracle's.
+    ValueError (one line) where the fit gives no positive gain (the model does not order the
+    oracle's returns at all)."""
+    import torch
+
+    from ..datasets import generate_screened
+    from ..mil.data import BagTensors
+    from ..mil.ensemble import as_ensemble
+
+    ds = generate_screened(task, trajectories, seed=seed, oracle=oracle)
+    ens, bags = as_ensemble(model).eval(), BagTensors(ds)
+    rows = bags.eval_rows(512, ens.members)
+    with torch.no_grad():
+        learnt = np.concatenate([ens(*bags.batch(torch.arange(i, min(i + rows, len(bags))))[:2]).returns.mean(0)
+                                 .double().numpy() for i in range(0, len(bags), rows)])
+    (gain, bias), *_ = np.linalg.lstsq(np.stack([ds.returns, ds.lengths.astype(float)], 1), learnt, rcond=None)
+    if not gain > 0:
+        raise ValueError(f"the model's returns do not grow with the oracle's on {len(ds.returns)} screened episodes "
+                         f"(gain {gain:.3g}): it cannot be read in the oracle's units")
+    return UnitsMap(float(gain), float(bias), len(ds.returns))
 
 
 def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_episodes: int = 50,
@@ -170,6 +223,7 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     (agent seed `seed`), then compare learnt and oracle returns of its greedy episodes (and of
     random ones) on `eval_episodes` new episodes; `oracle`: a user's oracle function, "" = the task's.
     On a task with a privileged state the agent observes it beside the served state."""
+    from ..mil.checkpoint import load_checkpoint
     from ..tasks import task_info
     from .evaluation import EVAL_SEED
     from .training import train_agent
@@ -178,22 +232,26 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     # a task with a privileged state (a camera task): the agent sees it, not the pixels (an MLP
     # agent of pixels learns nothing, and a check by an agent that learns nothing passes anything)
     observe = "privileged" if task_info(task).privileged_size else "state"
+    model, meta = load_checkpoint(checkpoint)
+    units = None if meta.return_units else units_map(model, task, seed=12345 + seed, oracle=oracle)
     run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle,
                       observe=observe)
     env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle, observe=observe)
-    agent_l, agent_o = _episodes(env, eval_episodes, EVAL_SEED,
-                                 lambda obs: run.model.predict(obs, deterministic=True)[0])
+    agent_l, agent_o, agent_len = _episodes(env, eval_episodes, EVAL_SEED,
+                                            lambda obs: run.model.predict(obs, deterministic=True)[0])
     rng = np.random.default_rng(seed)
     space = env.action_space
     if hasattr(space, "n"):
         act = lambda obs: int(rng.integers(space.n))  # noqa: E731
     else:
         act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
-    rand_l, rand_o = _episodes(env, eval_episodes, EVAL_SEED, act)
+    rand_l, rand_o, rand_len = _episodes(env, eval_episodes, EVAL_SEED, act)
+    if units is not None:
+        agent_l, rand_l = units.oracle_units(agent_l, agent_len), units.oracle_units(rand_l, rand_len)
     scale = max(np.abs(agent_o).mean(), np.abs(rand_o).mean(), np.std(rand_o), 1e-9)
     return HackingCheck(float(agent_l.mean()), float(agent_o.mean()), float(rand_l.mean()),
                         float(rand_o.mean()), float(np.sqrt(np.mean((rand_l - rand_o) ** 2))),
-                        float(scale), eval_episodes)
+                        float(scale), eval_episodes, units)
 
 
 def next_step(results: list, checkpoint: str, task: str, oracle: str = "") -> str:
