@@ -13,7 +13,7 @@ from nmrm_ros.testing.graph import executable
 from nmrm_ros.datasets import make_toy_dataset
 from nmrm_ros.datasets.trajectories import TrajectoryDataset
 from nmrm_ros.mil import Run, evaluate, load_checkpoint
-from nmrm_ros.mil.calibration import CalibrationError, calibrate, fit_calibration
+from nmrm_ros.mil.calibration import CalibrationError, calibrate, fit_calibration, step_units
 from nmrm_ros.mil.ensemble import init_ensemble
 from nmrm_ros.mil.models import model_config
 
@@ -58,6 +58,30 @@ def test_calibration_recovers_gain_and_per_step_bias_and_keeps_the_order(arch):
     same = labelled.subset(np.flatnonzero(ds.lengths == length))
     assert len(same) > 20
     assert np.array_equal(np.argsort(_predicted(model, same)[0][1]), np.argsort(_predicted(calibrated, same)[0][1]))
+
+
+def test_a_model_of_comparisons_is_put_in_units_of_its_largest_step():
+    """Comparisons leave the scale free: fit serves such a model with rewards r'_t / (its largest
+    |r'_t| on its training episodes), member by member; a model of returns is left as it is."""
+    from nmrm_ros.mil.pipeline import in_step_units
+
+    ds = make_toy_dataset("push_switch", 200, seed=0)
+    model = init_ensemble(model_config("csc_lstm", "push_switch", ds.state_size), [0, 1]).eval()
+    last = model._head[-1]
+    with torch.no_grad():  # member 1 pays on a scale 5x member 0's
+        model.params[f"head__{last}__weight"][1] *= 5
+        model.params[f"head__{last}__bias"][1] *= 5
+    mask = np.arange(ds.states.shape[1])[None] < ds.lengths[:, None]
+    before = _predicted(model, ds)[1]
+    units = step_units(model, ds)
+    np.testing.assert_allclose(units.gain, [np.abs(before[m][mask]).max() for m in range(2)], rtol=1e-5)
+    scaled, record = in_step_units(model, ds, "preferences")
+    after = _predicted(scaled, ds)[1]
+    np.testing.assert_allclose([np.abs(after[m][mask]).max() for m in range(2)], [1.0, 1.0], rtol=1e-5)
+    np.testing.assert_allclose(after[1][mask], before[1][mask] / units.gain[1], rtol=1e-4, atol=1e-6)
+    assert record["step_units"]["largest_step_reward"] == pytest.approx(units.gain.tolist())
+    for feedback in ("returns", "both"):
+        assert in_step_units(model, ds, feedback) == (model, {})
 
 
 def test_what_cannot_be_calibrated_is_refused_in_one_line():

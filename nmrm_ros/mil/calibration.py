@@ -93,6 +93,33 @@ def fit_calibration(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
     return Calibration(gain=gain, bias=bias, labels=len(sub))
 
 
+def step_units(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512) -> Calibration:
+    """The map that puts a model of comparisons in units of its largest step: per member, the
+    largest |r'_t| over the real steps of `ds` (its training episodes) as the gain, no bias, so
+    that `calibrate` gives rewards r'_t / gain (at most 1 in size on those steps; order and
+    correlation unchanged). Comparisons leave the scale free, and it is whatever training reached
+    (~3 per oracle unit on Key from 4000 perfect comparisons); an agent's values and learning rate
+    then depend on it (Key, data seed 2: greedy oracle return 52.7 unscaled, 77.0 in these units;
+    `nmrm_ros/mil/pipeline.py`). CalibrationError for an architecture that cannot be scaled."""
+    check_calibratable(model)
+    bags = BagTensors(ds)
+    was_training = model.training
+    model.eval()
+    largest = torch.zeros(model.members, dtype=torch.float64)
+    with torch.no_grad():
+        rows = bags.eval_rows(batch_size, model.members)
+        for start in range(0, len(bags), rows):
+            x, lengths, _ = bags.batch(torch.arange(start, min(start + rows, len(bags))))
+            real = torch.arange(x.shape[-2])[None, :] < lengths.reshape(-1, 1)
+            size = (model(x, lengths).rewards.abs() * real).amax(dim=(1, 2)).double()
+            largest = torch.maximum(largest, size)
+    model.train(was_training)
+    gain = largest.numpy()
+    if not np.all(gain > 0):
+        raise CalibrationError("a member pays 0 on every step of its training episodes: it has no scale to take")
+    return Calibration(gain=gain, bias=np.zeros(model.members), labels=0)
+
+
 def calibrate(model: MILEnsemble, calibration: Calibration) -> MILEnsemble:
     """A copy of `model` whose per-step rewards are (r' - bias) / gain (member by member)."""
     check_calibratable(model)

@@ -45,6 +45,23 @@ def member_splits(n: int, members: int, split_seed: int, mode: str,
     return triples, [split_seed] * members
 
 
+def in_step_units(ens: MILEnsemble, ds: TrajectoryDataset, feedback: str) -> tuple[MILEnsemble, dict]:
+    """A model trained from comparisons alone, in units of its largest step on its training
+    episodes `ds` (`calibration.step_units`), and the metrics entry that records it; any other
+    model (or one whose architecture cannot be scaled) as it is, and {}. Its evaluation metrics
+    (taken before) keep their meaning: order and correlation do not change with the scale."""
+    if feedback != "preferences":
+        return ens, {}
+    from .calibration import CalibrationError, calibrate, step_units
+
+    try:
+        units = step_units(ens, ds)
+    except CalibrationError:
+        return ens, {}
+    return calibrate(ens, units), {"step_units": {"largest_step_reward": units.gain.tolist(),
+                                                  "rewards": "r' / largest_step_reward, per member"}}
+
+
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
         split_mode: str = "shared", out: str | Path | None = None, progress: bool = True,
         data_source: DataSource | None = None, on_epoch=None, offsets: list[int] | None = None) -> Run:
@@ -99,6 +116,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         test, val = member_test[0], member_val[0]
     elif split_mode != "per_member":
         test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, trained_on.subset(splits[0][1]))
+    ens, units = in_step_units(ens, trained_on, cfg.feedback)
     run = Run.of(
         ens, ds.task, train=result, seed=cfg.seed, split_seed=split_seed, train_config=cfg.to_dict(),
         data=DataInfo(DataSource.parse(data_source) if isinstance(data_source, str) else data_source or DataSource(),
@@ -109,7 +127,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
                  "epochs_run": result.epochs_run, "seconds": result.seconds,
                  # per epoch, each trained member's validation criterion: how it stopped
                  "val_loss_history": [[float(v) for v in h["val_loss"]] for h in result.history],
-                 **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {})})
+                 **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {}),
+                 **units})
     if out is not None:
         run.save(out)
     return run

@@ -26,6 +26,7 @@ from ..datasets.trajectories import TrajectoryDataset
 from .checkpoint import CheckpointError, DataInfo, DataSource, EnsembleInfo, load_checkpoint
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
+from .pipeline import in_step_units
 from .run import Run
 from .training import load_train_config, train_ensemble
 
@@ -91,6 +92,7 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     serving = int(np.argmin(member_val))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     val_metrics = evaluate(ens, ds.subset(val))
+    ens, units = in_step_units(ens, ds, feedback)
     summary = {"labels": int(np.isfinite(ds.returns).sum()), "episodes": len(ds),
                "comparisons": 0 if ds.preferences is None else len(ds.preferences), "feedback": feedback,
                "validation_bags": len(val), "val_loss": float(np.mean(member_val)),
@@ -104,7 +106,7 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
         data=DataInfo(DataSource("live"), len(ds), ds.meta),
         ensemble=EnsembleInfo(members, serving, seeds, [seed] * members,
                               "bootstrap" if feedback == "returns" else "shared"),
-        metrics={"val": val_metrics, "member_val_loss": member_val, **summary})
+        metrics={"val": val_metrics, "member_val_loss": member_val, **summary, **units})
     path = run.save(out)
     summary["checkpoint"] = str(path)
     return summary
