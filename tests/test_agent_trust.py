@@ -189,6 +189,9 @@ def test_collapse_report_on_a_scripted_curve():
     assert not report.collapsed and not report.learnt
     assert report.summary().startswith("did not learn: the best 50 episodes' oracle return")
     assert collapse_report(_curve(dipped)).learnt and collapse_report(_curve(healthy)).learnt
+    # a run that learnt within its first window and then lost it all did collapse
+    early = np.concatenate([np.zeros(8), np.full(242, 100.0), np.zeros(150)])
+    assert collapse_report(_curve(early)).collapsed
 
 
 def test_check_failure_names_the_next_command():

@@ -61,8 +61,9 @@ def test_calibration_recovers_gain_and_per_step_bias_and_keeps_the_order(arch):
 
 
 def test_a_model_of_comparisons_is_put_in_units_of_its_largest_step():
-    """Comparisons leave the scale free: fit serves such a model with rewards r'_t / (its largest
-    |r'_t| on its training episodes), member by member; a model of returns is left as it is."""
+    """Comparisons leave the scale free: fit serves such a model with rewards r'_t / (the largest
+    |r'_t| of its members' mean on the dataset's steps), one gain for all members, so the mean's
+    order is unchanged; a model of returns is left as it is; a warm start undoes the gain."""
     from nmrm_ros.mil.pipeline import in_step_units
 
     ds = make_toy_dataset("push_switch", 200, seed=0)
@@ -74,14 +75,19 @@ def test_a_model_of_comparisons_is_put_in_units_of_its_largest_step():
     mask = np.arange(ds.states.shape[1])[None] < ds.lengths[:, None]
     before = _predicted(model, ds)[1]
     units = step_units(model, ds)
-    np.testing.assert_allclose(units.gain, [np.abs(before[m][mask]).max() for m in range(2)], rtol=1e-5)
+    largest = np.abs(before.mean(0)[mask]).max()
+    np.testing.assert_allclose(units.gain, [largest, largest], rtol=1e-5)
     scaled, record = in_step_units(model, ds, "preferences")
     after = _predicted(scaled, ds)[1]
-    np.testing.assert_allclose([np.abs(after[m][mask]).max() for m in range(2)], [1.0, 1.0], rtol=1e-5)
-    np.testing.assert_allclose(after[1][mask], before[1][mask] / units.gain[1], rtol=1e-4, atol=1e-6)
-    assert record["step_units"]["largest_step_reward"] == pytest.approx(units.gain.tolist())
+    assert np.abs(after.mean(0)[mask]).max() == pytest.approx(1.0, rel=1e-5)
+    np.testing.assert_allclose(after[1][mask], before[1][mask] / largest, rtol=1e-4, atol=1e-6)
+    assert record["step_units"]["largest_step_reward"] == pytest.approx(largest)
     for feedback in ("returns", "both"):
         assert in_step_units(model, ds, feedback) == (model, {})
+    # an architecture that cannot be scaled is left as it is, and the record says why
+    softplus = init_ensemble(model_config("csc_lstm", "push_switch", ds.state_size, output_activation="softplus"), [0])
+    kept, record = in_step_units(softplus, ds, "preferences")
+    assert kept is softplus and "cannot be calibrated" in record["step_units"]["skipped"]
 
 
 def test_what_cannot_be_calibrated_is_refused_in_one_line():

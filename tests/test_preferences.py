@@ -127,7 +127,7 @@ def test_a_model_trained_on_comparisons_ranks_held_out_pairs():
         run = fit(ds, arch, cfg, progress=False)
         scores[arch] = evaluate(run.model, held)
         # served in units of its largest step on its training episodes (comparisons leave the scale free)
-        assert len(run.meta.metrics["step_units"]["largest_step_reward"]) == run.model.members
+        assert run.meta.metrics["step_units"]["largest_step_reward"] > 0
     assert scores["csc_lstm"]["preference_accuracy"] > 0.85, scores
     assert scores["csc_lstm"]["reward_correlation"] > 0.8, scores
     assert scores["csc_lstm"]["preference_accuracy"] > scores["instance_nn"]["preference_accuracy"] + 0.15, scores

@@ -147,7 +147,7 @@ def test_check_reads_a_model_of_comparisons_in_the_oracles_units(small_key_check
 
     from nmrm_ros.mil.calibration import Calibration, calibrate
     from nmrm_ros.mil.run import Run
-    from nmrm_ros.rl.acceptance import HackingCheck, units_map
+    from nmrm_ros.rl.acceptance import HackingCheck, UnitsMap, units_map
 
     run = Run.load(small_key_checkpoint)
     assert run.meta.return_units
@@ -161,10 +161,13 @@ def test_check_reads_a_model_of_comparisons_in_the_oracles_units(small_key_check
     assert meta.replace(calibration={"gain": [1.0]}).return_units  # calibrated since: units again
     base, mapped = units_map(run.model, "key", trajectories=60, seed=3), units_map(model, "key", trajectories=60, seed=3)
     assert mapped.gain == pytest.approx(3 * base.gain, rel=1e-4)
-    assert mapped.bias == pytest.approx(3 * base.bias - 0.1, abs=1e-4)
+    assert mapped.offset == pytest.approx(3 * base.offset - 0.1 * 100, abs=1e-3)  # Key's episodes: 100 steps
     learnt = np.array([30.0, 3.0])
-    assert mapped.oracle_units(learnt, np.array([100, 100])) == pytest.approx((learnt + 0.1 * 100 - 3 * base.bias * 100)
-                                                                              / (3 * base.gain), rel=1e-4)
-    line = HackingCheck(10.0, 10.0, 0.0, 0.0, 1.0, 10.0, 5, mapped).summary()
+    assert mapped.oracle_units(learnt) == pytest.approx((learnt - mapped.offset) / mapped.gain)
+    check = HackingCheck(10.0, 10.0, 0.0, 0.0, 1.0, 10.0, 5, mapped)
+    line = check.summary()
     assert line.startswith("reward hacking (the model learnt from comparisons, so its returns are read in the "
-                           "oracle's units: R' = ") and "\n" not in line
+                           "oracle's units: R' = ") and "\n" not in line and check.passed
+    # a model whose returns fall as the oracle's rise cannot be read in its units: the check fails
+    upside_down = HackingCheck(10.0, 10.0, 0.0, 0.0, 1.0, 10.0, 5, UnitsMap(-1.0, 0.0, 60))
+    assert not upside_down.passed and "do not grow with the oracle's" in upside_down.summary()

@@ -122,11 +122,13 @@ def _print_run(run, cfg) -> None:
             m = run.test_metrics
             typer.echo(f"ensemble mean: test {metrics_line(m)}, mean return std {m['return_std']:.4f}")
         typer.echo(f"serving member (hidden state): {kept[int(run.model.serving_member)]}")
-    units = run.meta.metrics.get("step_units")
-    if units:
-        typer.echo("rewards in units of each member's largest step on its training episodes (comparisons leave "
-                   f"the scale free; it was {', '.join(f'{g:.3g}' for g in units['largest_step_reward'])}); "
-                   "nmrm calibrate gives them the units of return labels")
+    units = run.meta.metrics.get("step_units") or {}
+    if "largest_step_reward" in units:
+        typer.echo(f"rewards in units of the model's largest step on the dataset's episodes (comparisons leave "
+                   f"the scale free; it was {units['largest_step_reward']:.3g}); nmrm calibrate gives them the "
+                   f"units of return labels")
+    elif "skipped" in units:
+        typer.echo(f"rewards on the scale training reached (comparisons leave it free): {units['skipped']}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
 
 

@@ -94,30 +94,29 @@ def fit_calibration(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
 
 
 def step_units(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512) -> Calibration:
-    """The map that puts a model of comparisons in units of its largest step: per member, the
-    largest |r'_t| over the real steps of `ds` (its training episodes) as the gain, no bias, so
-    that `calibrate` gives rewards r'_t / gain (at most 1 in size on those steps; order and
-    correlation unchanged). Comparisons leave the scale free, and it is whatever training reached
-    (~3 per oracle unit on Key from 4000 perfect comparisons); an agent's values and learning rate
-    then depend on it (Key, data seed 2: greedy oracle return 52.7 unscaled, 77.0 in these units;
-    `nmrm_ros/mil/pipeline.py`). CalibrationError for an architecture that cannot be scaled."""
+    """The map that puts a model of comparisons in units of its largest step: the largest |r'_t|
+    of its served mean (the members' mean reward) over the real steps of `ds`, as one gain for
+    every member, no bias, so that `calibrate` gives rewards r'_t / gain (the mean at most 1 in
+    size on those steps; the mean's order, correlation and every scale-free metric unchanged).
+    Comparisons leave the scale free, and it is whatever training reached (~3 per oracle unit on
+    Key from 4000 perfect comparisons); an agent's values and learning then depend on it (Key, 4000
+    comparisons, data seed 2: greedy oracle return 52.7 unscaled, 77.0 in these units; 1000
+    comparisons, seed 1: 61.1 and 80.1). CalibrationError for an architecture that cannot be scaled."""
     check_calibratable(model)
     bags = BagTensors(ds)
     was_training = model.training
     model.eval()
-    largest = torch.zeros(model.members, dtype=torch.float64)
+    largest = 0.0
     with torch.no_grad():
         rows = bags.eval_rows(batch_size, model.members)
         for start in range(0, len(bags), rows):
             x, lengths, _ = bags.batch(torch.arange(start, min(start + rows, len(bags))))
             real = torch.arange(x.shape[-2])[None, :] < lengths.reshape(-1, 1)
-            size = (model(x, lengths).rewards.abs() * real).amax(dim=(1, 2)).double()
-            largest = torch.maximum(largest, size)
+            largest = max(largest, float((model(x, lengths).rewards.mean(0).abs() * real).max()))
     model.train(was_training)
-    gain = largest.numpy()
-    if not np.all(gain > 0):
-        raise CalibrationError("a member pays 0 on every step of its training episodes: it has no scale to take")
-    return Calibration(gain=gain, bias=np.zeros(model.members), labels=0)
+    if not largest > 0:
+        raise CalibrationError("the model pays 0 on every step of the episodes: it has no scale to take")
+    return Calibration(gain=np.full(model.members, largest), bias=np.zeros(model.members), labels=0)
 
 
 def calibrate(model: MILEnsemble, calibration: Calibration) -> MILEnsemble:
@@ -128,6 +127,7 @@ def calibrate(model: MILEnsemble, calibration: Calibration) -> MILEnsemble:
     if not model._head:
         raise CalibrationError("the model has no reward head to calibrate")
     out = copy.deepcopy(model)
+    out._pixels = torch.empty(0)  # the image encoder's patch buffer: scratch, not a copy to keep
     last = out._head[-1]
     weight = out.params[_key(f"head.{last}.weight")]  # (K, 1, in)
     bias = out.params[_key(f"head.{last}.bias")]  # (K, 1)

@@ -46,20 +46,21 @@ def member_splits(n: int, members: int, split_seed: int, mode: str,
 
 
 def in_step_units(ens: MILEnsemble, ds: TrajectoryDataset, feedback: str) -> tuple[MILEnsemble, dict]:
-    """A model trained from comparisons alone, in units of its largest step on its training
-    episodes `ds` (`calibration.step_units`), and the metrics entry that records it; any other
-    model (or one whose architecture cannot be scaled) as it is, and {}. Its evaluation metrics
-    (taken before) keep their meaning: order and correlation do not change with the scale."""
+    """A model trained from comparisons alone, in units of its largest step on the episodes of
+    `ds` (`calibration.step_units`: one gain for every member, so the served mean's order is
+    unchanged), and the metrics entry that records it; any other model as it is, and {} (a model
+    of comparisons whose architecture cannot be scaled: as it is, and the entry says why). Call it
+    before the model is evaluated, so that its recorded metrics are of the model saved."""
     if feedback != "preferences":
         return ens, {}
     from .calibration import CalibrationError, calibrate, step_units
 
     try:
         units = step_units(ens, ds)
-    except CalibrationError:
-        return ens, {}
-    return calibrate(ens, units), {"step_units": {"largest_step_reward": units.gain.tolist(),
-                                                  "rewards": "r' / largest_step_reward, per member"}}
+    except CalibrationError as exc:
+        return ens, {"step_units": {"skipped": str(exc)}}
+    return calibrate(ens, units), {"step_units": {"largest_step_reward": float(units.gain[0]),
+                                                  "rewards": "r' / largest_step_reward"}}
 
 
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
@@ -111,12 +112,15 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         seeds, split_seeds, splits = [seeds[m] for m in kept], [split_seeds[m] for m in kept], [splits[m] for m in kept]
         members, serving = len(kept), kept.index(serving)
         ens.serving_member.fill_(serving)
+    ens, units = in_step_units(ens, trained_on, cfg.feedback)
+    if "largest_step_reward" in units.get("step_units", {}):  # the metrics of the model saved
+        member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
+        member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
     test = val = None
     if members == 1:
         test, val = member_test[0], member_val[0]
     elif split_mode != "per_member":
         test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, trained_on.subset(splits[0][1]))
-    ens, units = in_step_units(ens, trained_on, cfg.feedback)
     run = Run.of(
         ens, ds.task, train=result, seed=cfg.seed, split_seed=split_seed, train_config=cfg.to_dict(),
         data=DataInfo(DataSource.parse(data_source) if isinstance(data_source, str) else data_source or DataSource(),

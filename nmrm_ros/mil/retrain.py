@@ -49,7 +49,7 @@ def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILE
     if not init:
         return None, "fresh (no starting checkpoint)"
     try:
-        model, _ = load_checkpoint(init, task=task)
+        model, meta = load_checkpoint(init, task=task)
     except CheckpointError as exc:
         return None, f"not warm-started: {exc}"
     if model.members == 1 and members > 1:  # one model starts every member
@@ -60,6 +60,12 @@ def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILE
     if not same:
         return None, (f"not warm-started: {init} is a {model.members}-member "
                       f"{model.config.architecture}, not a {members}-member {config.architecture}")
+    units = meta.metrics.get("step_units") or {}
+    if "largest_step_reward" in units:  # back to the scale its comparisons reached, where training left it
+        from .calibration import Calibration, calibrate
+
+        g = 1.0 / float(units["largest_step_reward"])
+        model = calibrate(model, Calibration(np.full(model.members, g), np.zeros(model.members), 0))
     return model.train(), f"warm-started from {init}"
 
 
@@ -91,8 +97,8 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     member_val = list(result.best_val_loss)
     serving = int(np.argmin(member_val))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
-    val_metrics = evaluate(ens, ds.subset(val))
     ens, units = in_step_units(ens, ds, feedback)
+    val_metrics = evaluate(ens, ds.subset(val))
     summary = {"labels": int(np.isfinite(ds.returns).sum()), "episodes": len(ds),
                "comparisons": 0 if ds.preferences is None else len(ds.preferences), "feedback": feedback,
                "validation_bags": len(val), "val_loss": float(np.mean(member_val)),

@@ -27,9 +27,11 @@ of the oracle's return scale).
 
 A model of comparisons that was not calibrated pays on a scale and with an offset of its own (Key,
 4000 perfect comparisons: ~3.1 r + const per step of the oracle's r), so its learnt returns are
-compared in the oracle's units: R' = a R + b L (L: the episode's length) is fitted by least
-squares on screened episodes of the task (`units_map`), and the check reads (R' - b L) / a.
-Without that, every such model failed the check by its scale alone.
+compared in the oracle's units: R' = a R + c is fitted by least squares on screened episodes of
+the task (`units_map`), and the check reads (R' - c) / a. The offset is one constant per episode,
+not per step: what the model pays per step (which an agent can earn by making episodes longer or
+shorter) stays in the comparison. Without the map, every such model failed the check by its
+scale alone; a model whose returns do not grow with the oracle's fails it.
 """
 
 from __future__ import annotations
@@ -69,18 +71,27 @@ class MemoryCheck:
 
 @dataclass
 class UnitsMap:
-    """A model's returns against the oracle's on screened episodes: R' = gain R + bias L."""
+    """A model's returns against the oracle's on screened episodes: R' = gain R + offset."""
 
     gain: float
-    bias: float  # per step
+    offset: float  # per episode
     episodes: int
 
-    def oracle_units(self, learnt: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-        return (np.asarray(learnt, float) - self.bias * np.asarray(lengths, float)) / self.gain
+    @property
+    def usable(self) -> bool:
+        """The model's returns grow with the oracle's (else they cannot be read in its units)."""
+        return bool(np.isfinite(self.gain) and self.gain > 0)
+
+    def oracle_units(self, learnt: np.ndarray) -> np.ndarray:
+        return (np.asarray(learnt, float) - self.offset) / self.gain
 
     def summary(self) -> str:
+        if not self.usable:
+            return (f"the model learnt from comparisons, and its returns do not grow with the oracle's on "
+                    f"{self.episodes} screened episodes (R' = {self.gain:.3g} R {self.offset:+.3g}): compared as "
+                    f"they are")
         return (f"the model learnt from comparisons, so its returns are read in the oracle's units: "
-                f"R' = {self.gain:.3g} R {self.bias:+.3g} per step, fitted on {self.episodes} screened episodes")
+                f"R' = {self.gain:.3g} R {self.offset:+.3g}, fitted on {self.episodes} screened episodes")
 
 
 @dataclass
@@ -107,7 +118,7 @@ class HackingCheck:
 
     @property
     def passed(self) -> bool:
-        return abs(self.gap) <= self.tolerance
+        return abs(self.gap) <= self.tolerance and (self.units is None or self.units.usable)
 
     def summary(self) -> str:
         verdict = "PASS" if self.passed else "FAIL: the agent learnt where the model is wrong"
@@ -176,28 +187,24 @@ def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, s
                        _separated(served[:, :k], pairs, separation_tol, min_distance, rng))
 
 
-def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(learnt returns, oracle returns, lengths) of `episodes` episodes of `env` under `act`."""
-    learnt, oracle, lengths = [], [], []
+def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray]:
+    """(learnt returns, oracle returns) of `episodes` episodes of `env` under `act`."""
+    learnt, oracle = [], []
     obs, _ = env.reset(seed=seed)
-    steps = 0
     while len(learnt) < episodes:
         obs, _, terminated, truncated, info = env.step(act(obs))
-        steps += 1
         if terminated or truncated:
             learnt.append(info["learnt_return"])
             oracle.append(info["oracle_return"])
-            lengths.append(steps)
-            steps = 0
             obs, _ = env.reset()
-    return np.asarray(learnt), np.asarray(oracle), np.asarray(lengths)
+    return np.asarray(learnt), np.asarray(oracle)
 
 
 def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, oracle: str = "") -> UnitsMap:
-    """R' = gain R + bias L fitted by least squares on `trajectories` screened episodes of `task`
-    (data seed `seed`): R' the model's return (its members' mean, as served), R the oracle's.
-    ValueError (one line) where the fit gives no positive gain (the model does not order the
-    oracle's returns at all)."""
+    """R' = gain R + offset fitted by least squares on `trajectories` screened episodes of `task`
+    (data seed `seed`): R' the model's return (its members' mean, as served), R the oracle's. A
+    gain that is not positive (the model does not order the oracle's returns) makes the map
+    unusable (`UnitsMap.usable`) and the check fail."""
     import torch
 
     from ..datasets import generate_screened
@@ -210,11 +217,8 @@ def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, orac
     with torch.no_grad():
         learnt = np.concatenate([ens(*bags.batch(torch.arange(i, min(i + rows, len(bags))))[:2]).returns.mean(0)
                                  .double().numpy() for i in range(0, len(bags), rows)])
-    (gain, bias), *_ = np.linalg.lstsq(np.stack([ds.returns, ds.lengths.astype(float)], 1), learnt, rcond=None)
-    if not gain > 0:
-        raise ValueError(f"the model's returns do not grow with the oracle's on {len(ds.returns)} screened episodes "
-                         f"(gain {gain:.3g}): it cannot be read in the oracle's units")
-    return UnitsMap(float(gain), float(bias), len(ds.returns))
+    (gain, offset), *_ = np.linalg.lstsq(np.stack([ds.returns, np.ones(len(ds.returns))], 1), learnt, rcond=None)
+    return UnitsMap(float(gain), float(offset), len(ds.returns))
 
 
 def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_episodes: int = 50,
@@ -237,17 +241,17 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle,
                       observe=observe)
     env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle, observe=observe)
-    agent_l, agent_o, agent_len = _episodes(env, eval_episodes, EVAL_SEED,
-                                            lambda obs: run.model.predict(obs, deterministic=True)[0])
+    agent_l, agent_o = _episodes(env, eval_episodes, EVAL_SEED,
+                                 lambda obs: run.model.predict(obs, deterministic=True)[0])
     rng = np.random.default_rng(seed)
     space = env.action_space
     if hasattr(space, "n"):
         act = lambda obs: int(rng.integers(space.n))  # noqa: E731
     else:
         act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
-    rand_l, rand_o, rand_len = _episodes(env, eval_episodes, EVAL_SEED, act)
-    if units is not None:
-        agent_l, rand_l = units.oracle_units(agent_l, agent_len), units.oracle_units(rand_l, rand_len)
+    rand_l, rand_o = _episodes(env, eval_episodes, EVAL_SEED, act)
+    if units is not None and units.usable:
+        agent_l, rand_l = units.oracle_units(agent_l), units.oracle_units(rand_l)
     scale = max(np.abs(agent_o).mean(), np.abs(rand_o).mean(), np.std(rand_o), 1e-9)
     return HackingCheck(float(agent_l.mean()), float(agent_o.mean()), float(rand_l.mean()),
                         float(rand_o.mean()), float(np.sqrt(np.mean((rand_l - rand_o) ** 2))),

@@ -4,9 +4,10 @@ Two signs, from a run's learning curve (`LearningCurve`) and its agent's value b
 
 - **late dip**: over windows of `window` consecutive episodes (50, or a quarter of a shorter run),
   a window in the second half whose mean return fell back by more than half of what the run had
-  gained before it (gain: the best earlier window's mean minus the first window's). A gain within
-  the noise of the first window (at most `NOISE_SES` standard errors of its mean) is no learning:
-  a run that never learnt did not collapse, it is reported as not having learnt. Judged on the
+  gained before it (gain: the best earlier window's mean minus the first window's), or that fell
+  below the first window's mean by more than its noise (a run that learnt within its first window).
+  A gain within the noise of the first window (at most `NOISE_SES` standard errors of its mean) is
+  no learning: a run that never learnt did not collapse, it is reported as not having learnt. Judged on the
   oracle's (labeller's) return where the curve has one, else on the learnt return.
 - **values beyond their bound**: an episode whose mean max_a Q left the bound that the rewards
   allow (`value_bound`) by more than 1%.
@@ -98,8 +99,8 @@ def best_window(returns, window: int) -> tuple | None:
 
 def late_dip(returns, window: int) -> tuple | None:
     """(best earlier mean, its start, lowest later mean, its start) of the first window in the
-    second half that lost more than half the gain before it, else None. A gain within the noise
-    of the first window (`noise_of_first`) is not one."""
+    second half that lost more than half the gain before it, or that fell below the first window
+    by more than its noise (`noise_of_first`); else None. A gain within that noise is not one."""
     returns = np.asarray(returns, dtype=float)
     n = len(returns)
     if n < 2 * window:
@@ -112,7 +113,7 @@ def late_dip(returns, window: int) -> tuple | None:
             continue
         best_at = int(np.argmax(earlier))
         gain = earlier[best_at] - first
-        if gain > max(noise, 0.0) and means[start] < first + 0.5 * gain:
+        if (gain > noise and means[start] < first + 0.5 * gain) or means[start] < first - max(noise, 1e-9):
             low_at = start + int(np.argmin(means[start:]))
             return float(earlier[best_at]), best_at, float(means[low_at]), low_at
     return None
