@@ -28,8 +28,9 @@ import numpy as np
 import torch
 
 from .architectures import REGISTRY
-from .data import BagTensors, TrajectoryDataset
+from .data import TrajectoryDataset
 from .ensemble import MILEnsemble, _key
+from .evaluation import batched_outputs
 
 #: architectures whose per-step reward is the reward head's last linear layer (times return_scale)
 CALIBRATABLE = tuple(name for name, arch in REGISTRY.items() if arch.reward_is_head_output)
@@ -73,17 +74,8 @@ def fit_calibration(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
                                f"the data has {len(labelled)}"
                                + (" (all with the same return)" if len(labelled) >= 2 else ""))
     sub = ds.subset(labelled)
-    bags = BagTensors(sub)
-    was_training = model.training
-    model.eval()
-    predicted = []
-    with torch.no_grad():
-        batch_size = bags.eval_rows(batch_size, model.members)
-        for start in range(0, len(bags), batch_size):
-            x, lengths, _ = bags.batch(torch.arange(start, min(start + batch_size, len(bags))))
-            predicted.append(model(x, lengths).returns.double().numpy())
-    model.train(was_training)
-    predicted = np.concatenate(predicted, axis=1)  # (K, N)
+    predicted = np.concatenate([out.returns.double().numpy()
+                                for out, _ in batched_outputs(model, sub, batch_size)], axis=1)  # (K, N)
     design = np.stack([sub.returns.astype(np.float64), sub.lengths.astype(np.float64)], axis=1)  # (N, 2)
     coef, *_ = np.linalg.lstsq(design, predicted.T, rcond=None)  # (2, K)
     gain, bias = coef[0], coef[1]
@@ -103,17 +95,8 @@ def step_units(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512)
     comparisons, data seed 2: greedy oracle return 52.7 unscaled, 77.0 in these units; 1000
     comparisons, seed 1: 61.1 and 80.1). CalibrationError for an architecture that cannot be scaled."""
     check_calibratable(model)
-    bags = BagTensors(ds)
-    was_training = model.training
-    model.eval()
-    largest = 0.0
-    with torch.no_grad():
-        rows = bags.eval_rows(batch_size, model.members)
-        for start in range(0, len(bags), rows):
-            x, lengths, _ = bags.batch(torch.arange(start, min(start + rows, len(bags))))
-            real = torch.arange(x.shape[-2])[None, :] < lengths.reshape(-1, 1)
-            largest = max(largest, float((model(x, lengths).rewards.mean(0).abs() * real).max()))
-    model.train(was_training)
+    largest = max(float((out.rewards.mean(0).abs() * (torch.arange(out.rewards.shape[-1]) < lengths[:, None])).max())
+                  for out, lengths in batched_outputs(model, ds, batch_size))  # real steps only
     if not largest > 0:
         raise CalibrationError("the model pays 0 on every step of the episodes: it has no scale to take")
     return Calibration(gain=np.full(model.members, largest), bias=np.zeros(model.members), labels=0)

@@ -31,6 +31,24 @@ from .ensemble import MILEnsemble, as_ensemble
 from .models import MILRewardModel
 
 
+def batched_outputs(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512):
+    """(output, lengths) of `model` on the bags of `ds` in order, batch by batch, in eval mode and
+    without gradients (the model's mode restored afterwards): MILOutput returns (K, B), rewards
+    (K, B, T) zero beyond each of the lengths (B,)."""
+    bags = BagTensors(ds)
+    was_training = model.training
+    model.eval()
+    try:
+        rows = bags.eval_rows(batch_size, model.members)
+        for start in range(0, len(bags), rows):
+            x, lengths, _ = bags.batch(torch.arange(start, min(start + rows, len(bags))))
+            with torch.no_grad():  # not around the yield: grad mode would leak into the caller
+                out = model(x, lengths)
+            yield out, lengths
+    finally:
+        model.train(was_training)
+
+
 @torch.no_grad()
 def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512) -> dict:
     """{"return_mse", "reward_mse", "bags", ...} of a model or an ensemble, scored on its mean

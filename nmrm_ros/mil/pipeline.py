@@ -91,8 +91,6 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     fitted_only = cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1
     result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                             progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
-    member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
-    member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     kept, unexplained = list(range(members)), None
@@ -108,14 +106,12 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
                       "candidate_val_loss": [float(v) for v in result.best_val_loss],
                       **({"chosen": serving} if cfg.keep_members == "best" else {})}
         ens = MILEnsemble.from_members([ens.member(m) for m in kept])
-        member_test, member_val = [member_test[m] for m in kept], [member_val[m] for m in kept]
         seeds, split_seeds, splits = [seeds[m] for m in kept], [split_seeds[m] for m in kept], [splits[m] for m in kept]
         members, serving = len(kept), kept.index(serving)
         ens.serving_member.fill_(serving)
-    ens, units = in_step_units(ens, trained_on, cfg.feedback)
-    if "largest_step_reward" in units.get("step_units", {}):  # the metrics of the model saved
-        member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
-        member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
+    ens, units = in_step_units(ens, trained_on, cfg.feedback)  # before evaluating: the model saved
+    member_test = [evaluate(ens.member(m), ds.subset(te)) for m, (_, _, te) in enumerate(splits)]
+    member_val = [evaluate(ens.member(m), trained_on.subset(va)) for m, (_, va, _) in enumerate(splits)]
     test = val = None
     if members == 1:
         test, val = member_test[0], member_val[0]

@@ -205,18 +205,13 @@ def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, orac
     (data seed `seed`): R' the model's return (its members' mean, as served), R the oracle's. A
     gain that is not positive (the model does not order the oracle's returns) makes the map
     unusable (`UnitsMap.usable`) and the check fail."""
-    import torch
-
     from ..datasets import generate_screened
-    from ..mil.data import BagTensors
     from ..mil.ensemble import as_ensemble
+    from ..mil.evaluation import batched_outputs
 
     ds = generate_screened(task, trajectories, seed=seed, oracle=oracle)
-    ens, bags = as_ensemble(model).eval(), BagTensors(ds)
-    rows = bags.eval_rows(512, ens.members)
-    with torch.no_grad():
-        learnt = np.concatenate([ens(*bags.batch(torch.arange(i, min(i + rows, len(bags))))[:2]).returns.mean(0)
-                                 .double().numpy() for i in range(0, len(bags), rows)])
+    learnt = np.concatenate([out.returns.mean(0).double().numpy()
+                             for out, _ in batched_outputs(as_ensemble(model), ds)])
     (gain, offset), *_ = np.linalg.lstsq(np.stack([ds.returns, np.ones(len(ds.returns))], 1), learnt, rcond=None)
     return UnitsMap(float(gain), float(offset), len(ds.returns))
 
