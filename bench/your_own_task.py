@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/your_own_task.py models --repeats 5 --jobs 2
     .venv/bin/python bench/your_own_task.py agents --seeds 0 1 2 --jobs 2
+    .venv/bin/python bench/your_own_task.py loop --seeds 0 1 2 3 4 --jobs 2
     .venv/bin/python bench/your_own_task.py --report
     # any task and oracle, results in bench/results/your_own_task/NAME/ (e.g. the fake robot's delivery):
     .venv/bin/python bench/your_own_task.py models --name delivery --repeats 3 \
@@ -22,6 +23,11 @@ scored on its test split and on a held-out dataset of data seed 999. Models trai
 agents: double DQN (config/rl.yaml, 400 episodes; --rl-set changes settings) on the repeat-0 CSC model's reward (served
 state: the default; `--model-repeats 0 1 2`: on each of those repeats' models, i.e. data seeds, as issue 50's table asks), on the oracle's reward with its hidden state, and without it; agent seeds as
 given; each judged by the oracle, greedy, on 50 episodes of seeds 10^8.. (`nmrm rl evaluate`).
+loop: the documented repair, `nmrm loop --rounds R --labels-per-round L --seed s` (default 4 x 500:
+round 0 labels L screened random episodes of data seed s, rounds 1.. the agent's own episodes; the
+agent's seed is s too), judged as the agents: greedy oracle return of its kept policy.
+Every agent and loop records whether it collapsed (`nmrm_ros.rl.collapse`: a late dip, or Q beyond
+its bound); the report counts them among the runs that recorded it.
 
 Resumes: every run is a JSON file in bench/results/your_own_task/ and is skipped when present,
 unless a model's recorded training settings are not today's defaults or an agent's reward model
@@ -148,10 +154,47 @@ def run_agent(job: tuple) -> dict:
     res = {"reward": reward, "seed": seed, "model_repeat": repeat if reward == "model" else None, "checkpoint_sha256": recorded_weights_sha256(checkpoint) if checkpoint else None,
            "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
-           "seconds": seconds, "late_dip": late_dip(out / "curve.csv"), "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"]}
+           "seconds": seconds, "late_dip": late_dip(out / "curve.csv"), "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"],
+           "collapsed": bool(run.collapse and run.collapse.collapsed), "collapse": run.collapse.summary() if run.collapse else ""}
     setting.agent_results.mkdir(parents=True, exist_ok=True)
     (setting.agent_results / f"{agent_name(reward, seed, repeat)}.json").write_text(json.dumps(res, indent=1))
     return res
+
+
+def loop_name(seed: int, rounds: int, labels: int) -> str:
+    return f"loop_{rounds}x{labels}_s{seed}"
+
+
+def run_loop_job(job: tuple) -> dict:
+    setting, seed, rounds, labels = job
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.rl.reward_model_loop import run_loop
+
+    out = setting.data / "loops" / loop_name(seed, rounds, labels)
+    result = run_loop(setting.task, rounds, labels, seed=seed, out=out, oracle=setting.oracle, log=lambda *a: None)
+    res = {"reward": "loop", "seed": seed, "rounds": rounds, "labels_per_round": labels,
+           "greedy_oracle_return": result.greedy_oracle_return, "final_oracle_return": result.final_oracle_return,
+           "round_oracle_returns": [r.mean_oracle_return for r in result.rounds],
+           "round_val_return_mse": [r.training.get("val_return_mse") for r in result.rounds],
+           "seconds": result.seconds, "collapsed": result.collapsed, "collapse": result.collapse,
+           "late_dip": late_dip(out / "agent" / "curve.csv"), "policy": str(out / "agent" / "policy.zip"),
+           "rl_config": json.loads((out / "agent" / "agent.json").read_text())["config"]}
+    (setting.results / f"{loop_name(seed, rounds, labels)}.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def loop_done(setting: Setting, seed: int, rounds: int, labels: int) -> bool:
+    """The loop of `seed` is finished with today's RL settings (its models train with the task's
+    config of the day, as `nmrm loop`'s)."""
+    path = setting.results / f"{loop_name(seed, rounds, labels)}.json"
+    if not path.is_file():
+        return False
+    stale = stale_rl_settings(json.loads(path.read_text()).get("rl_config"), setting.task)
+    if stale:
+        print(f"# {path.name}: not today's RL settings ({'; '.join(stale)}): run again", flush=True)
+    return not stale
 
 
 def model_done(setting: Setting, arch: str, r: int) -> bool:
@@ -239,14 +282,34 @@ def report(setting: Setting) -> str:
             dips = [r.get("late_dip", late_dip(Path(r["policy"]).parent / "curve.csv")) for r in runs]
             lines.append(f"{label:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
                          f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
-                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run); late dip {np.mean(dips):7.2f} [{min(dips):7.2f}]")
+                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run); late dip {np.mean(dips):7.2f} [{min(dips):7.2f}]"
+                         f"{collapses(runs)}")
         oracle = [json.loads(p.read_text())["greedy_oracle_return"] for p in sorted(where.glob("agent_oracle_s*.json"))]
         if model_runs and oracle:
-            v = np.array([r["greedy_oracle_return"] for r in model_runs]) / np.mean(oracle)
-            lines.append(f"# issue 50: agents on the models of every data seed ({len(v)} runs) / the oracle-with-hidden "
-                         f"agents' mean {np.mean(oracle):.2f}: median {np.median(v):.0%}, worst {v.min():.0%} "
-                         f"(targets 90% / 80%)")
+            lines.append(against_oracle("agents on the models of every data seed", model_runs, oracle))
+        if where != setting.results:
+            continue
+        for budget in sorted({p.name.split("_")[1] for p in where.glob("loop_*_s*.json")}):
+            runs = [json.loads(p.read_text()) for p in sorted(where.glob(f"loop_{budget}_s*.json"))]
+            v = [r["greedy_oracle_return"] for r in runs]
+            lines.append(f"{'loop ' + budget:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
+                         f"(last 50 training episodes {np.mean([r['final_oracle_return'] for r in runs]):.2f}; "
+                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run){collapses(runs)}")
+            if oracle:
+                lines.append(against_oracle(f"the loop ({budget} labels, round 0 on data seed = agent seed)", runs, oracle))
     return "\n".join(lines)
+
+
+def collapses(runs: list[dict]) -> str:
+    """'; collapsed k of n' over the runs that recorded it ('' if none did)."""
+    known = [r["collapsed"] for r in runs if "collapsed" in r]
+    return f"; collapsed {sum(known)} of {len(known)}" if known else ""
+
+
+def against_oracle(what: str, runs: list[dict], oracle: list[float]) -> str:
+    v = np.array([r["greedy_oracle_return"] for r in runs]) / np.mean(oracle)
+    return (f"# issue 50: {what} ({len(v)} runs) / the oracle-with-hidden agents' mean {np.mean(oracle):.2f}: "
+            f"median {np.median(v):.0%}, worst {v.min():.0%} (targets 90% / 80%)")
 
 
 def rl_settings(items: list[str]) -> tuple:
@@ -276,13 +339,15 @@ def rl_settings(items: list[str]) -> tuple:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", nargs="?", choices=("models", "agents"))
+    parser.add_argument("what", nargs="?", choices=("models", "agents", "loop"))
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--archs", nargs="*", default=list(ARCHS), choices=ARCHS, help="models: which architectures")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--rewards", nargs="*", default=list(REWARDS), choices=REWARDS, help="agents: which rewards")
     parser.add_argument("--model-repeats", type=int, nargs="*", default=[0],
                         help="agents: on the CSC models of these repeats (data seeds; default 0)")
+    parser.add_argument("--rounds", type=int, default=4, help="loop: rounds")
+    parser.add_argument("--labels-per-round", type=int, default=500, help="loop: labels per round")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true")
     parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
@@ -308,6 +373,16 @@ def main() -> None:
         jobs = [(setting, w, s, r) for r in args.model_repeats for s in args.seeds for w in args.rewards
                 if (w == "model" or r == args.model_repeats[0]) and not agent_done(setting, w, s, r)]
         fn = run_agent
+    elif args.what == "loop":
+        from nmrm_ros.rl.reward_model_loop import check_loop_arguments
+
+        try:
+            check_loop_arguments(args.rounds, args.labels_per_round, None, "returns")
+        except ValueError as exc:
+            raise SystemExit(f"loop: {exc}") from None
+        jobs = [(setting, s, args.rounds, args.labels_per_round) for s in args.seeds
+                if not loop_done(setting, s, args.rounds, args.labels_per_round)]
+        fn = run_loop_job
     else:
         jobs, fn = [], None
     if jobs:

@@ -134,6 +134,7 @@ def test_nmrm_loop_runs_rounds_and_writes_what_it_says(tmp_path):
     assert [r["total_labels"] for r in summary["rounds"]] == [20, 40, 60]
     assert [(r["first_episode"], r["last_episode"]) for r in summary["rounds"]] == [(0, 2), (2, 4), (4, 6)]
     assert summary["rounds"][1]["training"]["start"].startswith("warm-started from")
+    assert isinstance(summary["collapsed"], bool) and summary["collapse"]
     for name in ("labels.npz", "model_0.pt", "model_2.pt", "agent/policy.zip", "agent/curve.csv"):
         assert (out / name).stat().st_size > 0
     assert len((out / "agent/curve.csv").read_text().splitlines()) == 7

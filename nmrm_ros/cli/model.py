@@ -271,7 +271,7 @@ def check(
     what the oracle's hidden state separates) and the reward-hacking check (a short agent's
     learnt vs oracle return). Run it before training an agent; exit code 1 if a check fails."""
     from ..mil import load_checkpoint
-    from ..rl.acceptance import hacking_check, memory_check
+    from ..rl.acceptance import hacking_check, memory_check, screened_episodes
     from ..tasks import check_task, has_environment
 
     model, meta = load_checkpoint(checkpoint)
@@ -284,11 +284,12 @@ def check(
                          f"and trains an agent in one (a model of a task spec with an environment can be checked)")
     make_oracle(task, oracle)
     typer.echo(f"checking {checkpoint} ({model.config.architecture} on {task})")
-    results = [memory_check(model, task, seed=12345 + seed, oracle=oracle)]
+    screened = screened_episodes(task, seed=12345 + seed, oracle=oracle)  # both checks read them
+    results = [memory_check(model, task, seed=12345 + seed, oracle=oracle, screened=screened)]
     typer.echo(results[-1].summary())
     if not memory_only:
-        results.append(hacking_check(checkpoint, task, episodes=agent_episodes,
-                                     eval_episodes=eval_episodes, seed=seed, oracle=oracle))
+        results.append(hacking_check(checkpoint, task, episodes=agent_episodes, eval_episodes=eval_episodes,
+                                     seed=seed, oracle=oracle, screened=screened))
         typer.echo(results[-1].summary())
     if not all(r.passed for r in results):
         from ..rl.acceptance import next_step

@@ -152,18 +152,26 @@ def _separated(served: np.ndarray, pairs: np.ndarray, tol: float, min_distance: 
     return float(np.mean(d > max(tol * typical, min_distance)))
 
 
+def screened_episodes(task: str, trajectories: int = 300, seed: int = 12345, oracle: str = ""):
+    """The checks' episodes: `trajectories` screened episodes of `task` (data seed `seed`), labelled
+    by `oracle` ("" = the task's own); a `TrajectoryDataset`."""
+    from ..datasets import generate_screened
+
+    return generate_screened(task, trajectories, seed=seed, oracle=oracle)
+
+
 def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, steps: int = 4000,
                  state_tol: float = 0.05, separation_tol: float = 0.1,
-                 min_distance: float = 0.01, oracle: str = "") -> MemoryCheck:
-    """The memory check on `trajectories` screened trajectories of `task` (data seed `seed`),
-    `steps` steps drawn from them; `oracle`: a user's oracle function (its hidden state is what
-    must be separated), "" = the task's own."""
-    from ..datasets import generate_screened
+                 min_distance: float = 0.01, oracle: str = "", screened=None) -> MemoryCheck:
+    """The memory check on `trajectories` screened trajectories of `task` (data seed `seed`;
+    `screened`: those already made by `screened_episodes`), `steps` steps drawn from them;
+    `oracle`: a user's oracle function (its hidden state is what must be separated), "" = the
+    task's own."""
     from ..mil.served_state import served_states
     from ..oracles import make_oracle
 
     judge = make_oracle(task, oracle)
-    ds = generate_screened(task, trajectories, seed=seed, oracle=oracle)
+    ds = screened if screened is not None else screened_episodes(task, trajectories, seed, oracle)
     # what the oracle sees (a pixel task: the privileged state), and where "close" is measured
     seen = ds.states if ds.privileged is None else ds.privileged
     labels = judge.label(seen, lengths=ds.lengths)
@@ -200,16 +208,17 @@ def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarra
     return np.asarray(learnt), np.asarray(oracle)
 
 
-def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, oracle: str = "") -> UnitsMap:
+def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, oracle: str = "",
+              screened=None) -> UnitsMap:
     """R' = gain R + offset fitted by least squares on `trajectories` screened episodes of `task`
-    (data seed `seed`): R' the model's return (its members' mean, as served), R the oracle's. A
-    gain that is not positive (the model does not order the oracle's returns) makes the map
-    unusable (`UnitsMap.usable`) and the check fail."""
-    from ..datasets import generate_screened
+    (data seed `seed`; `screened`: those already made by `screened_episodes`): R' the model's
+    return (its members' mean, as served), R the oracle's. A gain that is not positive (the model
+    does not order the oracle's returns) makes the map unusable (`UnitsMap.usable`) and the check
+    fail."""
     from ..mil.ensemble import as_ensemble
     from ..mil.evaluation import batched_outputs
 
-    ds = generate_screened(task, trajectories, seed=seed, oracle=oracle)
+    ds = screened if screened is not None else screened_episodes(task, trajectories, seed, oracle)
     learnt = np.concatenate([out.returns.mean(0).double().numpy()
                              for out, _ in batched_outputs(as_ensemble(model), ds)])
     (gain, offset), *_ = np.linalg.lstsq(np.stack([ds.returns, np.ones(len(ds.returns))], 1), learnt, rcond=None)
@@ -217,11 +226,13 @@ def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, orac
 
 
 def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_episodes: int = 50,
-                  seed: int = 0, oracle: str = "") -> HackingCheck:
+                  seed: int = 0, oracle: str = "", screened=None) -> HackingCheck:
     """The reward-hacking check: train an agent for `episodes` episodes on the checkpoint's reward
     (agent seed `seed`), then compare learnt and oracle returns of its greedy episodes (and of
     random ones) on `eval_episodes` new episodes; `oracle`: a user's oracle function, "" = the task's.
-    On a task with a privileged state the agent observes it beside the served state."""
+    On a task with a privileged state the agent observes it beside the served state. A model of
+    comparisons is read in the oracle's units by `units_map` on `screened` (default: made here,
+    data seed 12345 + seed, as the memory check's)."""
     from ..mil.checkpoint import load_checkpoint
     from ..tasks import task_info
     from .evaluation import EVAL_SEED
@@ -232,7 +243,7 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     # agent of pixels learns nothing, and a check by an agent that learns nothing passes anything)
     observe = "privileged" if task_info(task).privileged_size else "state"
     model, meta = load_checkpoint(checkpoint)
-    units = None if meta.return_units else units_map(model, task, seed=12345 + seed, oracle=oracle)
+    units = None if meta.return_units else units_map(model, task, seed=12345 + seed, oracle=oracle, screened=screened)
     run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle,
                       observe=observe)
     env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle, observe=observe)

@@ -83,6 +83,7 @@ class LoopResult:
     out: str = ""
     feedback: str = "returns"
     collapse: str = ""         # the agent's collapse report (`nmrm_ros.rl.collapse`)
+    collapsed: bool = False    # that report found a late dip or Q beyond its bound
     kept_checkpoint: str = ""  # the model the kept policy (agent/policy.zip) acted on
 
     def summary(self) -> str:
@@ -307,6 +308,7 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     # the kept policy (kept_policy: the best snapshot of the run), served by the model it acted on
     kept = run.kept_checkpoint or result.rounds[-1].checkpoint
     result.kept_checkpoint, result.collapse = str(kept), run.collapse.summary() if run.collapse else ""
+    result.collapsed = bool(run.collapse and run.collapse.collapsed)
     ev = evaluate_agent(run.model, task, kept, reward="model", oracle=oracle)
     result.greedy_oracle_return = float(np.mean(ev.returns))
     result.seconds = time.perf_counter() - t0
