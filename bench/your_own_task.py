@@ -300,9 +300,21 @@ def report(setting: Setting) -> str:
     return "\n".join(lines)
 
 
+def collapsed(run: dict) -> bool | None:
+    """Whether an agent or loop run collapsed: as it recorded, or (runs before 2026-12-07) as its
+    agent.json beside the policy says, if that is still on this machine; None: unknown."""
+    if "collapsed" in run:
+        return bool(run["collapsed"])
+    agent = Path(run["policy"]).parent / "agent.json"
+    if agent.is_file():
+        report = json.loads(agent.read_text()).get("collapse")
+        return None if report is None else bool(report["collapsed"])
+    return None
+
+
 def collapses(runs: list[dict]) -> str:
-    """'; collapsed k of n' over the runs that recorded it ('' if none did)."""
-    known = [r["collapsed"] for r in runs if "collapsed" in r]
+    """'; collapsed k of n' over the runs whose collapse is known ('' if none)."""
+    known = [c for c in map(collapsed, runs) if c is not None]
     return f"; collapsed {sum(known)} of {len(known)}" if known else ""
 
 
