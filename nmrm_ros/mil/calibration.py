@@ -95,8 +95,8 @@ def step_units(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int = 512)
     comparisons, data seed 2: greedy oracle return 52.7 unscaled, 77.0 in these units; 1000
     comparisons, seed 1: 61.1 and 80.1). CalibrationError for an architecture that cannot be scaled."""
     check_calibratable(model)
-    largest = max(float((out.rewards.mean(0).abs() * (torch.arange(out.rewards.shape[-1]) < lengths[:, None])).max())
-                  for out, lengths in batched_outputs(model, ds, batch_size))  # real steps only
+    # rewards are 0 beyond each bag's length (batched_outputs): the largest is over real steps
+    largest = max(float(out.rewards.mean(0).abs().max()) for out, _ in batched_outputs(model, ds, batch_size))
     if not largest > 0:
         raise CalibrationError("the model pays 0 on every step of the episodes: it has no scale to take")
     return Calibration(gain=np.full(model.members, largest), bias=np.zeros(model.members), labels=0)
