@@ -333,11 +333,16 @@ def test_an_interrupted_dataset_generate_leaves_nothing_behind(tmp_path, sig, in
     while not out.with_name("key_bag.partial").exists() and proc.poll() is None:
         assert time.monotonic() < deadline
         time.sleep(0.05)
-    proc.send_signal(sig)  # in the middle of writing
+    try:  # how long the partial bag had been there: a failure says whether this process was starved
+        age = f"{time.time() - out.with_name('key_bag.partial').stat().st_mtime:.2f} s"
+    except FileNotFoundError:
+        age = "gone"
+    proc.send_signal(sig)  # in the middle of writing (idle: ~15 s of writing are left)
     text, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 128 + sig, text
-    assert "nmrm: interrupted" in text, text
-    assert not out.exists() and not out.with_name("key_bag.partial").exists()
+    said = f"signal sent when the partial bag was {age} old; output:\n{text}"
+    assert proc.returncode == 128 + sig, said
+    assert "nmrm: interrupted" in text, said
+    assert not out.exists() and not out.with_name("key_bag.partial").exists(), said
     again = _nmrm("dataset", "generate", "--task", "key", "--episodes", "20", "--out", str(out))
     assert again.returncode == 0, again.stdout + again.stderr
     assert (out / "metadata.yaml").is_file()
