@@ -283,7 +283,7 @@ def report(setting: Setting) -> str:
             lines.append(f"{label:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
                          f"(random policy {np.mean([r['random_oracle_return'] for r in runs]):.2f}; "
                          f"{np.mean([r['seconds'] for r in runs]):.0f} s/run); late dip {np.mean(dips):7.2f} [{min(dips):7.2f}]"
-                         f"{collapses(runs)}")
+                         f"{collapses(runs)}{replaced_model(setting, runs)}")
         oracle = [json.loads(p.read_text())["greedy_oracle_return"] for p in sorted(where.glob("agent_oracle_s*.json"))]
         if model_runs and oracle:
             lines.append(against_oracle("agents on the models of every data seed", model_runs, oracle))
@@ -298,6 +298,21 @@ def report(setting: Setting) -> str:
             if oracle:
                 lines.append(against_oracle(f"the loop ({budget} labels, round 0 on data seed = agent seed)", runs, oracle))
     return "\n".join(lines)
+
+
+def replaced_model(setting: Setting, runs: list[dict]) -> str:
+    """'; on a replaced model' when some agents learnt on a checkpoint of their model repeat that has
+    since been trained again (its weights differ from the one on this machine); '' otherwise,
+    also when that repeat's checkpoint is not on this machine (nothing to compare with)."""
+    repeats = {r["model_repeat"] for r in runs if r.get("model_repeat") is not None}
+    if len(repeats) != 1:
+        return ""
+    checkpoint = checkpoint_path(setting, "csc_lstm", repeats.pop())
+    if not checkpoint.with_suffix(".pt").is_file():
+        return ""
+    today = recorded_weights_sha256(checkpoint)
+    old = sum(r.get("checkpoint_sha256") != today for r in runs)
+    return f"; {old} of {len(runs)} on a replaced model (retrained since)" if old else ""
 
 
 def collapsed(run: dict) -> bool | None:
