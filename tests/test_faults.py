@@ -166,7 +166,7 @@ def test_a_killed_and_restarted_reward_model_costs_one_episode(ros_domain, tmp_p
 
 # -- no silent corruption, no destroyed data -----------------------------------------------------
 def _bag_with_chunks(tmp_path, n=60):
-    from nmrm_ros.bags import BagWriter, write_dataset_bag
+    from nmrm_ros.bags import write_dataset_bag
     from nmrm_ros.datasets import generate_screened
 
     ds = generate_screened("key", n, seed=0)
