@@ -153,11 +153,35 @@ def test_episode_scores_need_both_judges():
     assert episode_scores(learnt, np.full(3, np.nan)).tolist() == [0.0, 0.2, 1.0]
 
 
-def _curve(oracle, learnt=None, q=None) -> LearningCurve:
+def _curve(oracle, learnt=None, q=None, bounds=None) -> LearningCurve:
     learnt = oracle if learnt is None else learnt
     return LearningCurve([EpisodeRecord(i, float(o), float(g), 100, 0.0,
-                                        q={"q_max": float(q[i]), "q_spread": 1.0} if q is not None else {})
+                                        q=({"q_max": float(q[i]), "q_spread": 1.0} | (
+                                            {} if bounds is None else {"value_bound": float(bounds[i])}))
+                                        if q is not None else {})
                           for i, (o, g) in enumerate(zip(oracle, learnt))])
+
+
+def test_values_are_judged_against_the_bound_of_their_own_episode():
+    """The bound moves (rewards enter and leave the buffer; the loop swaps the model): the patrol
+    loop's agent seed 1 peaked at Q 104 in round 2, whose model allowed ~106, and was called
+    collapsed against the last model's 102."""
+    healthy = np.concatenate([np.linspace(0, 80, 150), np.full(250, 80.0)])
+    q = np.concatenate([np.linspace(0, 100, 300), np.full(100, 95.0)])
+    q[297] = 104.0
+    moving = np.where(np.arange(400) < 300, 106.0, 102.0)
+    report = collapse_report(_curve(healthy, q=q, bounds=moving), bound_high=102.0)
+    assert not report.collapsed and report.q_episode == 297
+    assert "max Q 104 (episode 297) within its bound 106" in report.summary()
+    # ... and a peak beyond the bound of its time is one, whatever the bound at the end
+    rising = np.where(np.arange(400) < 300, 100.0, 110.0)
+    report = collapse_report(_curve(healthy, q=q, bounds=rising), bound_high=110.0)
+    assert report.collapsed and report.q_beyond_bound and report.q_episode == 297
+    assert "max Q reached 104 at episode 297, beyond the 100 the rewards allowed then" in report.summary()
+    # the first episodes, before any training step, have no bound of their own: the given one judges
+    early = np.full(400, np.nan)
+    early[300:] = 102.0
+    assert not collapse_report(_curve(healthy, q=np.minimum(q, 101.0), bounds=early), bound_high=102.0).collapsed
 
 
 def test_collapse_report_on_a_scripted_curve():

@@ -237,9 +237,12 @@ def test_cli_train_and_evaluate(tmp_path, checkpoints):
     model_meta = json.loads(checkpoint_paths(checkpoints["key"])[1].read_text())
     assert json.loads((out / "agent.json").read_text())["checkpoint_sha256"] == model_meta["weights_sha256"]
     rows = (out / "curve.csv").read_text().splitlines()
-    assert rows[0] == "episode,oracle_return,learnt_return,steps,wall_time,q_max,q_spread" and len(rows) == 4
-    q_spread = [float(r.split(",")[-1]) for r in rows[1:]]  # DQN's Q-values on the states it acted in
+    assert rows[0] == "episode,oracle_return,learnt_return,steps,wall_time,q_max,q_spread,value_bound" and len(rows) == 4
+    q_spread = [float(r.split(",")[-2]) for r in rows[1:]]  # DQN's Q-values on the states it acted in
     assert all(np.isfinite(q_spread)) and min(q_spread) >= 0.0
+    # the bound its targets were clipped to at each episode's end: none before the first training step (128)
+    bounds = [float(r.split(",")[-1]) for r in rows[1:]]
+    assert np.isnan(bounds[0]) and all(np.isfinite(bounds[1:])) and min(bounds[1:]) >= 0.0
     res = nmrm("evaluate", "--policy", str(out / "policy.zip"), "--task", "key", "--episodes", "3")
     assert res.returncode == 0, res.stderr
     assert "reward model: oracle return over 3 episodes: policy" in res.stdout and "random policy" in res.stdout

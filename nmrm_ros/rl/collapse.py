@@ -10,7 +10,9 @@ Two signs, from a run's learning curve (`LearningCurve`) and its agent's value b
   no learning: a run that never learnt did not collapse, it is reported as not having learnt. Judged on the
   oracle's (labeller's) return where the curve has one, else on the learnt return.
 - **values beyond their bound**: an episode whose mean max_a Q left the bound that the rewards
-  allow (`value_bound`) by more than 1%.
+  allowed at that episode (`value_bound`; the curve's `value_bound`, which changes as rewards
+  enter and leave the replay buffer and when the loop swaps the model) by more than 1%. A curve
+  without per-episode bounds is judged against the one bound given (the end of the run's).
 """
 
 from __future__ import annotations
@@ -28,8 +30,10 @@ NOISE_SES = 4.0
 @dataclass
 class CollapseReport:
     """dip: (best earlier window mean, its first episode, lowest later window mean, its first
-    episode) or None; q_peak: the highest episode mean of max Q (None: not a value-based agent);
-    bound_high: the value bound's upper end (None: unbounded); judged_by: "oracle" | "learnt"."""
+    episode) or None; q_peak: the episode mean of max Q that came nearest its bound, or went
+    furthest beyond it (None: not a value-based agent); bound_high: the value bound's upper end at
+    that episode (None: unbounded); q_episode: that episode (None: not known); judged_by: "oracle" |
+    "learnt"."""
 
     dip: tuple | None
     q_peak: float | None
@@ -39,6 +43,7 @@ class CollapseReport:
     kept_episode: int | None = None  # the kept policy's snapshot (None: the last policy)
     best: tuple | None = None  # (best window mean, its first episode, the first window's mean); None: no window
     learnt: bool = True  # the best window beyond the noise of the first (see NOISE_SES)
+    q_episode: int | None = None
 
     @property
     def q_beyond_bound(self) -> bool:
@@ -52,7 +57,8 @@ class CollapseReport:
     def summary(self) -> str:
         kept = ("the last policy is kept" if self.kept_episode is None
                 else f"kept the policy of episode {self.kept_episode} (policy.zip; the last: last_policy.zip)")
-        q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}" + (
+        at = "" if self.q_episode is None else f" (episode {self.q_episode})"
+        q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}{at}" + (
             "" if self.bound_high is None else f" within its bound {self.bound_high:.3g}")
         if not self.collapsed and not self.learnt and self.best is not None:
             best, at, first = self.best
@@ -67,12 +73,14 @@ class CollapseReport:
             parts.append(f"the {self.judged_by} return fell from {best:.3g} (episodes {at}-{at + self.window - 1}) "
                          f"to {low:.3g} (episodes {low_at}-{low_at + self.window - 1})")
         if self.q_beyond_bound:
-            parts.append(f"max Q reached {self.q_peak:.3g}, beyond the {self.bound_high:.3g} the rewards allow")
+            at = "" if self.q_episode is None else f" at episode {self.q_episode}"
+            parts.append(f"max Q reached {self.q_peak:.3g}{at}, beyond the {self.bound_high:.3g} the rewards allow"
+                         + ("" if self.q_episode is None else "ed then"))
         return "learning collapsed: " + "; ".join(parts) + f"; {kept}"
 
     def to_dict(self) -> dict:
         return {"collapsed": self.collapsed, "late_dip": self.dip, "q_peak": self.q_peak,
-                "value_bound": self.bound_high, "q_beyond_bound": self.q_beyond_bound,
+                "value_bound": self.bound_high, "q_episode": self.q_episode, "q_beyond_bound": self.q_beyond_bound,
                 "judged_by": self.judged_by, "window": self.window, "learnt": self.learnt,
                 "summary": self.summary()}
 
@@ -119,17 +127,37 @@ def late_dip(returns, window: int) -> tuple | None:
     return None
 
 
+def peak_against_bound(records, bound_high: float | None = None) -> tuple:
+    """(q, bound, episode) of the episode whose mean max Q went furthest beyond the bound in force
+    then (its record's q["value_bound"]), or came nearest it; records without their own bound are
+    judged against `bound_high` (episode None: no record has its own). (None, bound_high, None)
+    when no record has a Q."""
+    rows = [(r.q["q_max"], r.q.get("value_bound"), r.episode) for r in records
+            if r.q and np.isfinite(r.q.get("q_max", np.nan))]
+    if not rows:
+        return None, bound_high, None
+    if not any(b is not None and np.isfinite(b) for _, b, _ in rows):
+        return max(q for q, _, _ in rows), bound_high, None
+    # a record without its own bound (the first episodes, before any training step) is judged by the given one
+    judged = [(q, b if b is not None and np.isfinite(b) else bound_high, e) for q, b, e in rows]
+    bounded = [row for row in judged if row[1] is not None]
+    if not bounded:
+        return max(q for q, _, _ in rows), None, None
+    return max(bounded, key=lambda row: row[0] - 1.01 * row[1])
+
+
 def collapse_report(curve, bound_high: float | None = None, kept_episode: int | None = None,
                     window: int = 50) -> CollapseReport:
-    """The report for a `LearningCurve` (its records' oracle_return, learnt_return and q) and the
-    agent's value bound (`ValueBound.high`, None for none)."""
+    """The report for a `LearningCurve` (its records' oracle_return, learnt_return and q: q_max and,
+    where recorded, the value bound of that episode) and the agent's value bound at the end of the
+    run (`ValueBound.high`, None for none)."""
     records = curve.records
     window = max(1, min(window, len(records) // 4))
     oracle = np.array([r.oracle_return for r in records], dtype=float)
     judged_by = "oracle" if len(oracle) and np.isfinite(oracle).all() else "learnt"
     returns = oracle if judged_by == "oracle" else np.array([r.learnt_return for r in records], float)
-    q = [r.q["q_max"] for r in records if r.q and np.isfinite(r.q.get("q_max", np.nan))]
+    q_peak, bound, q_episode = peak_against_bound(records, bound_high)
     best = best_window(returns, window)
     learnt = best is None or best[0] - best[2] > noise_of_first(returns, window)
-    return CollapseReport(late_dip(returns, window), max(q) if q else None, bound_high, judged_by,
-                          window, kept_episode, best, learnt)
+    return CollapseReport(late_dip(returns, window), q_peak, bound, judged_by, window, kept_episode, best,
+                          learnt, q_episode)

@@ -10,7 +10,9 @@ run, and writes into `out/`:
 - `curve.csv`: one row per episode: episode, oracle_return, learnt_return, steps, wall_time (s),
   oracle_<component> per reward component where the oracle has them (Lunar Lander), and for a
   value-based agent (DQN) q_max and q_spread: the episode's mean over steps of max_a Q(s, a) and of
-  max_a Q − min_a Q (a spread near 0 means the network no longer tells actions apart);
+  max_a Q − min_a Q (a spread near 0 means the network no longer tells actions apart), and
+  value_bound: the bound its targets were clipped to at the episode's end (`value_bound`; it
+  moves with the rewards in the replay buffer and with the model the loop serves);
 - `curve.png`: the oracle and learnt-reward returns per episode;
 - `agent.json`: task, reward kind, checkpoint (and its weights' SHA-256), seeds and config (what
   `evaluate_agent` needs), the kept policy and the collapse report (`collapse`).
@@ -49,7 +51,7 @@ class EpisodeRecord:
     steps: int
     wall_time: float
     components: dict = field(default_factory=dict)  # the oracle's return per reward component
-    q: dict = field(default_factory=dict)  # DQN: {"q_max", "q_spread"} means over the episode's steps
+    q: dict = field(default_factory=dict)  # DQN: {"q_max", "q_spread"} means over the episode's steps, "value_bound"
 
 
 @dataclass
@@ -138,9 +140,11 @@ class EpisodeCurveCallback(BaseCallback):
             if not done or info.get("after_last_episode"):  # a topic bridge with no episode left
                 continue
             q = {}
+            bound = value_bound_high(self.model)
             if self._q_sums is not None:
                 q = {"q_max": float(self._q_sums[i, 0] / self._steps[i]),
-                     "q_spread": float(self._q_sums[i, 1] / self._steps[i])}
+                     "q_spread": float(self._q_sums[i, 1] / self._steps[i]),
+                     "value_bound": float("nan") if bound is None else bound}
                 self._q_sums[i] = 0.0
             rec = EpisodeRecord(len(self.curve.records), float(info.get("oracle_return", np.nan)),
                                 float(info.get("learnt_return", np.nan)), int(self._steps[i]),
@@ -148,8 +152,7 @@ class EpisodeCurveCallback(BaseCallback):
             self.curve.records.append(rec)
             self._steps[i] = 0
             if self.keeper is not None:
-                self.keeper.on_episode(self.model, rec.learnt_return, rec.oracle_return, q.get("q_max"),
-                                       value_bound_high(self.model))
+                self.keeper.on_episode(self.model, rec.learnt_return, rec.oracle_return, q.get("q_max"), bound)
             if self.on_episode is not None:
                 self.on_episode(rec, info)
         if self.max_episodes is not None and len(self.curve.records) >= self.max_episodes:
