@@ -7,7 +7,6 @@ import copy
 import json
 import subprocess
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch
