@@ -136,14 +136,13 @@ def peak_against_bound(records, bound_high: float | None = None) -> tuple:
             if r.q and np.isfinite(r.q.get("q_max", np.nan))]
     if not rows:
         return None, bound_high, None
-    if not any(b is not None and np.isfinite(b) for _, b, _ in rows):
-        return max(q for q, _, _ in rows), bound_high, None
+    own = [b is not None and np.isfinite(b) for _, b, _ in rows]
     # a record without its own bound (the first episodes, before any training step) is judged by the given one
-    judged = [(q, b if b is not None and np.isfinite(b) else bound_high, e) for q, b, e in rows]
-    bounded = [row for row in judged if row[1] is not None]
-    if not bounded:
+    bounded = [(q, b if has else bound_high, e) for (q, b, e), has in zip(rows, own) if has or bound_high is not None]
+    if not bounded:  # an unbounded agent
         return max(q for q, _, _ in rows), None, None
-    return max(bounded, key=lambda row: row[0] - 1.01 * row[1])
+    q, bound, episode = max(bounded, key=lambda row: row[0] - 1.01 * row[1])
+    return q, bound, episode if any(own) else None
 
 
 def collapse_report(curve, bound_high: float | None = None, kept_episode: int | None = None,
