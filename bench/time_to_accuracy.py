@@ -17,7 +17,9 @@ never used to choose a default. Nothing else should run meanwhile (the wall time
 
 Tasks: key, timer, charger, moving (the paper's navigation tasks); cartpole (examples/
 cartpole_crossings.py), mountaincar (examples/mountaincar_swing.py), delivery (the fake robot's
-task), each a task spec that takes config/mil_training.yaml's `your_own_task` entry; and, only
+task), patrol and cue_corridor (examples/patrol_robot.py, examples/cue_corridor.py: issue 50's
+tasks written after the settings were frozen), each a task spec that takes config/mil_training.yaml's
+`your_own_task` entry; and, only
 when named, key_pixels ... moving_pixels (the same datasets rendered to 32 x 32 images, issue 53).
 
 Resumes: each run is bench/results/time_to_accuracy/<tag>/<task>_s<s>.json and is skipped when
@@ -30,6 +32,7 @@ from __future__ import annotations
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -53,11 +56,18 @@ OWN = {
     "mountaincar": ("gym:MountainCar-v0", str(ROOT / "examples" / "mountaincar_swing.py") + ":oracle", 3000, 1000),
     "delivery": ("nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1", "nmrm_ros.robots.delivery:oracle",
                  2000, 1000),
+    # issue 50's held-out tasks, module envs in examples/ (importable: the bench puts examples/ on the path)
+    "patrol": ("patrol_robot:PatrolEnv,max_steps=200,xy=0/1", str(ROOT / "examples" / "patrol_robot.py") + ":oracle",
+               2000, 1000),
+    "cue_corridor": ("cue_corridor:CueCorridor,max_steps=30", str(ROOT / "examples" / "cue_corridor.py") + ":oracle",
+                     2000, 1000),
 }
+EXAMPLES = ROOT / "examples"  # where the module envs of OWN are found (this process and `nmrm train`)
 #: the navigation tasks seen through a rendered top-down image (issue 53; not in the default run)
 PIXELS = tuple(f"{t}_pixels" for t in NAV)
 TASKS = NAV + tuple(OWN) + PIXELS
 NMRM = Path(sys.executable).parent / "nmrm"
+sys.path.insert(0, str(EXAMPLES))
 
 
 def dataset_file(task: str, seed: int, held_out: bool = False) -> Path:
@@ -122,7 +132,8 @@ def run(task: str, seed: int, tag: str, config: Path | None) -> dict:
     if config is not None:
         cmd += ["--config", str(config)]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(EXAMPLES), os.environ.get("PYTHONPATH")])))
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise SystemExit(f"{task} seed {seed}: nmrm train failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
