@@ -184,6 +184,29 @@ def test_values_are_judged_against_the_bound_of_their_own_episode():
     assert not collapse_report(_curve(healthy, q=np.minimum(q, 101.0), bounds=early), bound_high=102.0).collapsed
 
 
+
+def test_an_untrained_networks_values_over_the_first_rewards_tiny_bound_are_not_a_runaway():
+    """Patrol robot, a 16-unit model paying ~2e-4 a step at first: at episode 0 the buffer's
+    rewards allowed 0.02 and the untrained network's mean max Q was 0.07; the run's bound is 100.
+    Judged by 1% of the run's largest bound, that is no collapse, and the window is scored."""
+    healthy = np.concatenate([np.linspace(0, 80, 150), np.full(250, 80.0)])
+    q = np.concatenate([[0.07, 0.05], np.linspace(0.5, 70, 398)])
+    bounds = np.concatenate([[0.02, 0.03], np.full(398, 100.0)])
+    report = collapse_report(_curve(healthy, q=q, bounds=bounds), bound_high=100.0)
+    assert not report.collapsed and not report.q_beyond_bound, report.summary()
+    # a value that does run away, early or late, still is one
+    q_run = q.copy()
+    q_run[1] = 5.0
+    assert collapse_report(_curve(healthy, q=q_run, bounds=bounds), bound_high=100.0).q_beyond_bound
+    class Fake:
+        policy = torch.nn.Linear(1, 1)
+
+    keeper = PolicyKeeper(every=2)
+    for e in range(6):
+        keeper.on_episode(Fake(), learnt=float(e), judged=float(e), q_max=float(q[e]),
+                          bound_high=float(bounds[e]))
+    assert all(np.isfinite(s.score) for s in keeper._score())
+
 def test_collapse_report_on_a_scripted_curve():
     rise = np.linspace(0, 80, 150)
     healthy = np.concatenate([rise, np.full(250, 80.0)])

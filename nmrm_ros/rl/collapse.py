@@ -11,8 +11,13 @@ Two signs, from a run's learning curve (`LearningCurve`) and its agent's value b
   oracle's (labeller's) return where the curve has one, else on the learnt return.
 - **values beyond their bound**: an episode whose mean max_a Q left the bound that the rewards
   allowed at that episode (`value_bound`; the curve's `value_bound`, which changes as rewards
-  enter and leave the replay buffer and when the loop swaps the model) by more than 1%. A curve
-  without per-episode bounds is judged against the one bound given (the end of the run's).
+  enter and leave the replay buffer and when the loop swaps the model) by more than 1% of the
+  largest bound of the run (`BOUND_MARGIN`). A curve without per-episode bounds is judged against
+  the one bound given (the end of the run's). The margin is of the run's scale, not the
+  episode's: in the first episodes the buffer holds few rewards and their bound can be far below
+  the values a network outputs before it has learnt anything (patrol robot, a model paying
+  ~2e-4 a step at first: bound 0.02 at episode 0, the untrained network's Q 0.07; the run's
+  bound 100), which is not a value running away.
 """
 
 from __future__ import annotations
@@ -25,6 +30,17 @@ import numpy as np
 #: (the random episodes of Key's first 50: mean 0.56, standard error 0.34; a run whose best window
 #: earned 1.52 had learnt nothing)
 NOISE_SES = 4.0
+#: values beyond their bound: by more than this fraction of the run's largest bound
+BOUND_MARGIN = 0.01
+
+
+def beyond_bound(q: float | None, bound: float | None, scale: float | None = None) -> bool:
+    """Whether a mean max Q `q` left the value bound's top `bound` in force at its episode by more
+    than BOUND_MARGIN of `scale` (the run's largest bound; None: `bound` itself)."""
+    if q is None or bound is None:
+        return False
+    scale = abs(bound) if scale is None else max(abs(scale), abs(bound))
+    return q > bound + BOUND_MARGIN * scale + 1e-6
 
 
 @dataclass
@@ -44,11 +60,11 @@ class CollapseReport:
     best: tuple | None = None  # (best window mean, its first episode, the first window's mean); None: no window
     learnt: bool = True  # the best window beyond the noise of the first (see NOISE_SES)
     q_episode: int | None = None
+    bound_scale: float | None = None  # the run's largest bound (None: bound_high)
 
     @property
     def q_beyond_bound(self) -> bool:
-        return (self.q_peak is not None and self.bound_high is not None
-                and self.q_peak > self.bound_high * 1.01 + 1e-6)
+        return beyond_bound(self.q_peak, self.bound_high, self.bound_scale)
 
     @property
     def collapsed(self) -> bool:
@@ -128,21 +144,23 @@ def late_dip(returns, window: int) -> tuple | None:
 
 
 def peak_against_bound(records, bound_high: float | None = None) -> tuple:
-    """(q, bound, episode) of the episode whose mean max Q went furthest beyond the bound in force
-    then (its record's q["value_bound"]), or came nearest it; records without their own bound are
-    judged against `bound_high` (episode None: no record has its own). (None, bound_high, None)
-    when no record has a Q."""
+    """(q, bound, episode, scale) of the episode whose mean max Q went furthest beyond the bound in
+    force then (its record's q["value_bound"]), or came nearest it, and the run's largest bound
+    (the margin's scale: BOUND_MARGIN); records without their own bound are judged against
+    `bound_high` (episode None: no record has its own). (None, bound_high, None, bound_high) when
+    no record has a Q."""
     rows = [(r.q["q_max"], r.q.get("value_bound"), r.episode) for r in records
             if r.q and np.isfinite(r.q.get("q_max", np.nan))]
     if not rows:
-        return None, bound_high, None
+        return None, bound_high, None, bound_high
     own = [b is not None and np.isfinite(b) for _, b, _ in rows]
     # a record without its own bound (the first episodes, before any training step) is judged by the given one
     bounded = [(q, b if has else bound_high, e) for (q, b, e), has in zip(rows, own) if has or bound_high is not None]
     if not bounded:  # an unbounded agent
-        return max(q for q, _, _ in rows), None, None
-    q, bound, episode = max(bounded, key=lambda row: row[0] - 1.01 * row[1])
-    return q, bound, episode if any(own) else None
+        return max(q for q, _, _ in rows), None, None, None
+    scale = max(abs(b) for _, b, _ in bounded)
+    q, bound, episode = max(bounded, key=lambda row: row[0] - row[1])
+    return q, bound, episode if any(own) else None, scale
 
 
 def collapse_report(curve, bound_high: float | None = None, kept_episode: int | None = None,
@@ -155,8 +173,8 @@ def collapse_report(curve, bound_high: float | None = None, kept_episode: int | 
     oracle = np.array([r.oracle_return for r in records], dtype=float)
     judged_by = "oracle" if len(oracle) and np.isfinite(oracle).all() else "learnt"
     returns = oracle if judged_by == "oracle" else np.array([r.learnt_return for r in records], float)
-    q_peak, bound, q_episode = peak_against_bound(records, bound_high)
+    q_peak, bound, q_episode, scale = peak_against_bound(records, bound_high)
     best = best_window(returns, window)
     learnt = best is None or best[0] - best[2] > noise_of_first(returns, window)
     return CollapseReport(late_dip(returns, window), q_peak, bound, judged_by, window, kept_episode, best,
-                          learnt, q_episode)
+                          learnt, q_episode, scale)

@@ -17,8 +17,9 @@ where the judged return is the labeller's or oracle's return of that episode whe
 return alone. So a policy is kept for being good by the reward model *and* by the judge: a model
 that overpays the states an agent found (reward hacking) cannot make its policy kept on its own,
 and neither can a judge's lucky episodes under a policy the model rates low. A window whose
-agent's values left the bound the rewards allow (`value_bound`) is not scored: its policy was
-bootstrapping on nothing.
+agent's values left the bound the rewards allow (`value_bound`; by more than 1% of the run's
+largest bound, as `collapse.beyond_bound` judges) is not scored: its policy was bootstrapping on
+nothing.
 
 The kept snapshot is the latest whose score is within `tolerance` (0.05 on that scale) of the
 best: in a run that does not collapse that is (nearly) the last policy, as before; when the last
@@ -31,6 +32,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from .collapse import beyond_bound
 
 #: what the score of a snapshot is (written to agent.json)
 CRITERION = ("mean over the episodes after a snapshot of min(learnt, judged), each return scaled to [0, 1] "
@@ -80,7 +83,7 @@ class PolicyKeeper:
         self.snapshots: list[Snapshot] = []
         self.learnt: list = []
         self.judged: list = []
-        self.q_beyond: list = []
+        self.q_bound: list = []  # per episode: (mean max Q, the value bound's top then), None where unknown
         self.tag: str | None = None
 
     @property
@@ -91,8 +94,7 @@ class PolicyKeeper:
                    bound_high: float | None = None) -> None:
         self.learnt.append(float(learnt))
         self.judged.append(float(judged))
-        self.q_beyond.append(q_max is not None and bound_high is not None
-                             and q_max > bound_high * 1.01 + 1e-6)
+        self.q_bound.append((q_max, bound_high))
         if self.episodes % self.every == 0:
             self.snapshots.append(Snapshot(self.episodes, _copy_weights(model), self.tag))
 
@@ -110,12 +112,15 @@ class PolicyKeeper:
     def _score(self) -> list:
         """The snapshots with a full window, their `score` set (-inf: Q beyond the bound)."""
         scores = episode_scores(np.array(self.learnt), np.array(self.judged))
+        bounds = [abs(b) for _, b in self.q_bound if b is not None]
+        scale = max(bounds) if bounds else None  # the margin is of the run's scale (collapse.beyond_bound)
+        beyond = [beyond_bound(q, b, scale) for q, b in self.q_bound]
         scored = []
         for s in self.snapshots:
             window = slice(s.episode, s.episode + self.every)
             if s.episode + self.every > self.episodes:
                 continue
-            s.score = -math.inf if any(self.q_beyond[window]) else float(np.mean(scores[window]))
+            s.score = -math.inf if any(beyond[window]) else float(np.mean(scores[window]))
             scored.append(s)
         return scored
 
