@@ -194,6 +194,7 @@ def test_an_untrained_networks_values_over_the_first_rewards_tiny_bound_are_not_
     bounds = np.concatenate([[0.02, 0.03], np.full(398, 100.0)])
     report = collapse_report(_curve(healthy, q=q, bounds=bounds), bound_high=100.0)
     assert not report.collapsed and not report.q_beyond_bound, report.summary()
+    assert "max Q 70 (episode 399) within its bound 100" in report.summary()  # the largest, not episode 0's
     # a value that does run away, early or late, still is one
     q_run = q.copy()
     q_run[1] = 5.0

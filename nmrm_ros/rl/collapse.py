@@ -145,10 +145,10 @@ def late_dip(returns, window: int) -> tuple | None:
 
 def peak_against_bound(records, bound_high: float | None = None) -> tuple:
     """(q, bound, episode, scale) of the episode whose mean max Q went furthest beyond the bound in
-    force then (its record's q["value_bound"]), or came nearest it, and the run's largest bound
-    (the margin's scale: BOUND_MARGIN); records without their own bound are judged against
-    `bound_high` (episode None: no record has its own). (None, bound_high, None, bound_high) when
-    no record has a Q."""
+    force then (its record's q["value_bound"]; `beyond_bound`), or, if none did, of the largest
+    mean max Q, and the run's largest bound (the margin's scale: BOUND_MARGIN); records without
+    their own bound are judged against `bound_high` (episode None: no record has its own).
+    (None, bound_high, None, bound_high) when no record has a Q."""
     rows = [(r.q["q_max"], r.q.get("value_bound"), r.episode) for r in records
             if r.q and np.isfinite(r.q.get("q_max", np.nan))]
     if not rows:
@@ -159,7 +159,9 @@ def peak_against_bound(records, bound_high: float | None = None) -> tuple:
     if not bounded:  # an unbounded agent
         return max(q for q, _, _ in rows), None, None, None
     scale = max(abs(b) for _, b, _ in bounded)
-    q, bound, episode = max(bounded, key=lambda row: row[0] - row[1])
+    beyond = [row for row in bounded if beyond_bound(row[0], row[1], scale)]
+    q, bound, episode = (max(beyond, key=lambda row: row[0] - row[1]) if beyond
+                         else max(bounded, key=lambda row: row[0]))
     return q, bound, episode if any(own) else None, scale
 
 
