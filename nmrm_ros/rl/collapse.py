@@ -37,9 +37,9 @@ BOUND_MARGIN = 0.01
 def beyond_bound(q: float | None, bound: float | None, scale: float | None = None) -> bool:
     """Whether a mean max Q `q` left the value bound's top `bound` in force at its episode by more
     than BOUND_MARGIN of `scale` (the run's largest bound; None: `bound` itself)."""
-    if q is None or bound is None:
+    if q is None or bound is None or not np.isfinite(bound):
         return False
-    scale = abs(bound) if scale is None else max(abs(scale), abs(bound))
+    scale = abs(bound) if scale is None or not np.isfinite(scale) else max(abs(scale), abs(bound))
     return q > bound + BOUND_MARGIN * scale + 1e-6
 
 

@@ -112,7 +112,7 @@ class PolicyKeeper:
     def _score(self) -> list:
         """The snapshots with a full window, their `score` set (-inf: Q beyond the bound)."""
         scores = episode_scores(np.array(self.learnt), np.array(self.judged))
-        bounds = [abs(b) for _, b in self.q_bound if b is not None]
+        bounds = [abs(b) for _, b in self.q_bound if b is not None and math.isfinite(b)]
         scale = max(bounds) if bounds else None  # the margin is of the run's scale (collapse.beyond_bound)
         beyond = [beyond_bound(q, b, scale) for q, b in self.q_bound]
         scored = []
