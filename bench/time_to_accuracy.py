@@ -49,20 +49,20 @@ RESULTS = ROOT / "bench" / "results" / "time_to_accuracy"
 RUNS = ROOT / "runs" / "time_to_accuracy"
 HELD_OUT_SEED = 999
 NAV = ("key", "timer", "charger", "moving")
+EXAMPLES = ROOT / "examples"  # the examples' oracles, and the module envs of OWN (importable: this process and `nmrm train`)
 #: your-own-task examples: (task spec, oracle, episodes, held-out episodes)
 OWN = {
-    "cartpole": ("gym:CartPole-v1,max_episode_steps=200", str(ROOT / "examples" / "cartpole_crossings.py") + ":oracle",
+    "cartpole": ("gym:CartPole-v1,max_episode_steps=200", str(EXAMPLES / "cartpole_crossings.py") + ":oracle",
                  2000, 1000),
-    "mountaincar": ("gym:MountainCar-v0", str(ROOT / "examples" / "mountaincar_swing.py") + ":oracle", 3000, 1000),
+    "mountaincar": ("gym:MountainCar-v0", str(EXAMPLES / "mountaincar_swing.py") + ":oracle", 3000, 1000),
     "delivery": ("nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1", "nmrm_ros.robots.delivery:oracle",
                  2000, 1000),
-    # issue 50's held-out tasks, module envs in examples/ (importable: the bench puts examples/ on the path)
-    "patrol": ("patrol_robot:PatrolEnv,max_steps=200,xy=0/1", str(ROOT / "examples" / "patrol_robot.py") + ":oracle",
+    # issue 50's held-out tasks, module envs in examples/
+    "patrol": ("patrol_robot:PatrolEnv,max_steps=200,xy=0/1", str(EXAMPLES / "patrol_robot.py") + ":oracle",
                2000, 1000),
-    "cue_corridor": ("cue_corridor:CueCorridor,max_steps=30", str(ROOT / "examples" / "cue_corridor.py") + ":oracle",
+    "cue_corridor": ("cue_corridor:CueCorridor,max_steps=30", str(EXAMPLES / "cue_corridor.py") + ":oracle",
                      2000, 1000),
 }
-EXAMPLES = ROOT / "examples"  # where the module envs of OWN are found (this process and `nmrm train`)
 #: the navigation tasks seen through a rendered top-down image (issue 53; not in the default run)
 PIXELS = tuple(f"{t}_pixels" for t in NAV)
 TASKS = NAV + tuple(OWN) + PIXELS

@@ -184,7 +184,6 @@ def test_values_are_judged_against_the_bound_of_their_own_episode():
     assert not collapse_report(_curve(healthy, q=np.minimum(q, 101.0), bounds=early), bound_high=102.0).collapsed
 
 
-
 def test_an_untrained_networks_values_over_the_first_rewards_tiny_bound_are_not_a_runaway():
     """Patrol robot, a 16-unit model paying ~2e-4 a step at first: at episode 0 the buffer's
     rewards allowed 0.02 and the untrained network's mean max Q was 0.07; the run's bound is 100.
@@ -199,6 +198,7 @@ def test_an_untrained_networks_values_over_the_first_rewards_tiny_bound_are_not_
     q_run = q.copy()
     q_run[1] = 5.0
     assert collapse_report(_curve(healthy, q=q_run, bounds=bounds), bound_high=100.0).q_beyond_bound
+
     class Fake:
         policy = torch.nn.Linear(1, 1)
 

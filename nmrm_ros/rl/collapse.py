@@ -46,8 +46,8 @@ def beyond_bound(q: float | None, bound: float | None, scale: float | None = Non
 @dataclass
 class CollapseReport:
     """dip: (best earlier window mean, its first episode, lowest later window mean, its first
-    episode) or None; q_peak: the episode mean of max Q that came nearest its bound, or went
-    furthest beyond it (None: not a value-based agent); bound_high: the value bound's upper end at
+    episode) or None; q_peak: the episode mean of max Q that went furthest beyond its bound, or,
+    if none did, the largest (`peak_against_bound`; None: not a value-based agent); bound_high: the value bound's upper end at
     that episode (None: unbounded); q_episode: that episode (None: not known); judged_by: "oracle" |
     "learnt"."""
 
