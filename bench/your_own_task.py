@@ -364,6 +364,25 @@ def rl_settings(items: list[str]) -> tuple:
     return tuple(sorted(pairs.items()))
 
 
+def named_task(name: str, task: str, oracle: str) -> tuple[str, str]:
+    """The task and oracle of the results NAME/: recorded in NAME/setting.json by its first run;
+    later runs (and --report) may leave out --task and --oracle, but not give others."""
+    if not name:
+        return task, oracle
+    record = RESULTS / name / "setting.json"
+    if not record.is_file():
+        if (task, oracle) == (TASK, ORACLE):
+            raise SystemExit(f"--name {name}: no results yet; give its --task and --oracle")
+        record.parent.mkdir(parents=True, exist_ok=True)
+        record.write_text(json.dumps({"task": task, "oracle": oracle}, indent=1))
+        return task, oracle
+    known = json.loads(record.read_text())
+    if (task, oracle) != (TASK, ORACLE) and (task, oracle) != (known["task"], known["oracle"]):
+        raise SystemExit(f"--name {name} holds task {known['task']} with oracle {known['oracle']}, "
+                         f"not {task} with {oracle}: give another --name")
+    return known["task"], known["oracle"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", nargs="?", choices=("models", "agents", "loop"))
@@ -385,7 +404,8 @@ def main() -> None:
     args = parser.parse_args()
     if (args.task, args.oracle) != (TASK, ORACLE) and not args.name:
         raise SystemExit("give --name for another task or oracle (its results go to bench/results/your_own_task/NAME/)")
-    setting = Setting(args.task, args.oracle, args.name, rl_settings(args.rl_set))
+    task, oracle = named_task(args.name, args.task, args.oracle)
+    setting = Setting(task, oracle, args.name, rl_settings(args.rl_set))
     results = setting.results
     results.mkdir(parents=True, exist_ok=True)
     if args.what == "models":
