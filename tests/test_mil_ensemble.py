@@ -303,3 +303,30 @@ def test_keep_members_fitted_serves_and_records_the_members_kept(tmp_path, monke
     from nmrm_ros.mil.training import TrainConfig
 
     assert TrainConfig().keep_members == "all"  # what runs recorded before the setting trained with
+
+
+def test_nmrm_train_says_how_much_of_the_returns_the_model_explains_and_warns_when_too_little(capsys):
+    """The served model's validation 1 - R^2 is recorded (the validation return MSE over the variance
+    of the validation labels); `nmrm train` prints the share explained, and a warning with the next
+    step when it is under 1 - POORLY_FITTED (here a model of 2 epochs, which has not left the plateau)."""
+    from nmrm_ros.cli.model import _print_fit, _print_run
+    from nmrm_ros.mil import load_train_config
+    from nmrm_ros.mil.fitted import POORLY_FITTED, poorly_fitted
+    from nmrm_ros.mil.pipeline import member_splits
+
+    ds = make_toy_dataset("push_switch", 200, seed=0)
+    cfg = load_train_config("push_switch", max_epochs=2)
+    run = fit(ds, "csc_lstm", cfg, members=1, progress=False)
+    _, va, _ = member_splits(len(ds), 1, 0, "shared")[0][0]
+    unexplained = run.meta.metrics["val_unexplained_variance"]
+    assert unexplained == pytest.approx(run.meta.metrics["val"]["return_mse"] / np.var(ds.returns[va]), rel=1e-6)
+    assert poorly_fitted(unexplained)
+    _print_run(run, cfg)
+    printed = capsys.readouterr().out
+    assert f"warning: the model explains {max(0.0, 1 - unexplained):.1%} of the variance of the validation returns" in printed
+    assert "Markovian plateau" in printed and "another --seed" in printed
+    _print_fit(POORLY_FITTED / 10)
+    assert capsys.readouterr().out == f"the model explains {1 - POORLY_FITTED / 10:.1%} of the variance of the validation returns\n"
+    _print_fit(None)  # comparisons only: nothing to judge by
+    assert capsys.readouterr().out == ""
+    assert not poorly_fitted(None) and not poorly_fitted(float("nan"))

@@ -122,6 +122,7 @@ def _print_run(run, cfg) -> None:
             m = run.test_metrics
             typer.echo(f"ensemble mean: test {metrics_line(m)}, mean return std {m['return_std']:.4f}")
         typer.echo(f"serving member (hidden state): {kept[int(run.model.serving_member)]}")
+    _print_fit(run.meta.metrics.get("val_unexplained_variance"))
     units = run.meta.metrics.get("step_units") or {}
     if "largest_step_reward" in units:
         typer.echo(f"rewards in units of the model's largest step on the dataset's episodes (comparisons leave "
@@ -130,6 +131,22 @@ def _print_run(run, cfg) -> None:
     elif "skipped" in units:
         typer.echo(f"rewards on the scale training reached (comparisons leave it free): {units['skipped']}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
+
+
+def _print_fit(unexplained: float | None) -> None:
+    """How much of the validation returns' variance the served model explains; a warning with the
+    next step when it is too little (`fitted.poorly_fitted`)."""
+    from ..mil.fitted import POORLY_FITTED, poorly_fitted
+
+    if unexplained is None:
+        return
+    share = f"the model explains {max(0.0, 1.0 - unexplained):.1%} of the variance of the validation returns"
+    if not poorly_fitted(unexplained):
+        typer.echo(share)
+        return
+    typer.echo(f"warning: {share} (under {1 - POORLY_FITTED:.0%}): it may have stayed on the Markovian plateau "
+               f"(paying the present state only; `nmrm check` tells), or the labels are noisy; train again with "
+               f"another --seed, more members (--ensemble) or more episodes")
 
 
 def _print_left_out(run, kept: list) -> None:

@@ -14,7 +14,7 @@ from .checkpoint import DataInfo, DataSource, EnsembleInfo
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .fitted import fitted_members
+from .fitted import fitted_members, label_variance
 from .run import Run
 from .training import TrainConfig, train_ensemble
 
@@ -117,6 +117,9 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         test, val = member_test[0], member_val[0]
     elif split_mode != "per_member":
         test, val = evaluate(ens, ds.subset(splits[0][2])), evaluate(ens, trained_on.subset(splits[0][1]))
+    # what share of the validation returns' variance the served model leaves unexplained (1 - R^2)
+    val_var = label_variance(trained_on.returns[splits[0][1]]) if val is not None and cfg.feedback == "returns" else 0.0
+    served_unexplained = {"val_unexplained_variance": float(val["return_mse"] / val_var)} if val_var > 0 else {}
     run = Run.of(
         ens, ds.task, train=result, seed=cfg.seed, split_seed=split_seed, train_config=cfg.to_dict(),
         data=DataInfo(DataSource.parse(data_source) if isinstance(data_source, str) else data_source or DataSource(),
@@ -128,7 +131,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
                  # per epoch, each trained member's validation criterion: how it stopped
                  "val_loss_history": [[float(v) for v in h["val_loss"]] for h in result.history],
                  **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {}),
-                 **units})
+                 **served_unexplained, **units})
     if out is not None:
         run.save(out)
     return run
