@@ -95,7 +95,8 @@ def test_ensemble_training_is_each_member_trained_alone():
 
 def test_ensemble_checkpoint_and_online_step(tmp_path):
     ds = make_toy_dataset("push_switch", 200, seed=1)
-    cfg = load_train_config("push_switch", max_epochs=2, keep_members="all")  # 2 epochs: some members not fitted yet
+    # 2 epochs: some members not fitted yet (redraws 0: one draw of them)
+    cfg = load_train_config("push_switch", max_epochs=2, keep_members="all", redraws=0)
     run = fit(ds, "csc_lstm", cfg, members=4, split_mode="bootstrap", out=tmp_path / "ens", progress=False)
     meta = json.loads((tmp_path / "ens.json").read_text())
     assert meta["ensemble"]["members"] == 4 and meta["ensemble"]["seeds"] == [0, 1, 2, 3]
@@ -330,3 +331,39 @@ def test_nmrm_train_says_how_much_of_the_returns_the_model_explains_and_warns_wh
     _print_fit(None)  # comparisons only: nothing to judge by
     assert capsys.readouterr().out == ""
     assert not poorly_fitted(None) and not poorly_fitted(float("nan"))
+
+
+def test_redraws_train_new_members_when_none_fitted_and_keep_the_better_draw(tmp_path, monkeypatch, capsys):
+    """cfg.redraws: a draw whose members all stayed poorly fitted (2 epochs here) is followed by K
+    new members (seeds + REDRAW_SEED_STEP); the draw with the best member is kept and saved with its
+    seeds, and every draw is recorded and printed. A draw with a fitted member is the only one."""
+    from nmrm_ros.cli.model import _print_run
+    from nmrm_ros.mil import Run, load_train_config
+    from nmrm_ros.mil import pipeline
+
+    ds = make_toy_dataset("push_switch", 200, seed=0)
+    cfg = load_train_config("push_switch", max_epochs=2, redraws=1, seed=3)
+    run = fit(ds, "csc_lstm", cfg, members=2, progress=False, out=tmp_path / "redrawn")
+    draws = run.meta.metrics["draws"]
+    step = pipeline.REDRAW_SEED_STEP
+    assert [d["seeds"] for d in draws] == [[3, 4], [3 + step, 4 + step]]
+    assert all(d["epochs_run"] == 2 and len(d["unexplained"]) == 2 and min(d["unexplained"]) > 0.25 for d in draws)
+    kept = [d for d in draws if d["kept"]]
+    assert len(kept) == 1 and kept[0]["unexplained"] == min((d["unexplained"] for d in draws), key=min)
+    loaded = Run.load(tmp_path / "redrawn")
+    assert loaded.seeds and set(loaded.seeds) <= set(kept[0]["seeds"]) and loaded.meta.metrics["draws"] == draws
+    assert run.meta.metrics["seconds"] == pytest.approx(sum(d["seconds"] for d in draws))
+    _print_run(run, cfg)
+    printed = capsys.readouterr().out
+    assert f"draw 2 (seeds {3 + step}, {4 + step}): 2 epochs" in printed and "(kept)" in printed
+    # one draw when a member fitted, or with redraws 0
+    monkeypatch.setattr(pipeline, "poorly_fitted", lambda u: False)
+    assert "draws" not in fit(ds, "csc_lstm", cfg, members=2, progress=False).meta.metrics
+    monkeypatch.undo()
+    single = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=2, seed=3, redraws=0), members=2,
+                 progress=False)
+    assert "draws" not in single.meta.metrics and single.seeds == [3, 4]
+    repeats = fit(ds, "csc_lstm", cfg, members=2, split_mode="per_member", progress=False)  # the paper's repeats
+    assert "draws" not in repeats.meta.metrics and repeats.seeds == [3, 4]
+    with pytest.raises(ValueError, match="redraws must be >= 0"):
+        load_train_config("push_switch", redraws=-1)

@@ -103,6 +103,7 @@ def _print_run(run, cfg) -> None:
     if run.chosen is not None:
         typer.echo(f"best of {len(t.best_val_loss)} candidates on validation (losses {losses}): "
                    f"candidate {run.chosen}, seed {run.seeds[0]}")
+    _print_draws(run.meta.metrics.get("draws"))
     if run.model.members == 1:
         c = kept[0]
         typer.echo(f"best epoch {t.best_epochs[c]}/{t.epochs_run} in {t.seconds:.1f} s; "
@@ -131,6 +132,20 @@ def _print_run(run, cfg) -> None:
     elif "skipped" in units:
         typer.echo(f"rewards on the scale training reached (comparisons leave it free): {units['skipped']}")
     typer.echo(f"checkpoint: {run.checkpoint} (+ .json)")
+
+
+def _print_draws(draws: list | None) -> None:
+    """redraws: each draw of members that was trained, and which was kept (nothing for one draw)."""
+    if not draws:
+        return
+    from ..mil.fitted import POORLY_FITTED
+
+    for d, draw in enumerate(draws, 1):
+        typer.echo(f"draw {d} (seeds {', '.join(map(str, draw['seeds']))}): {draw['epochs_run']} epochs in "
+                   f"{draw['seconds']:.1f} s, best member's validation 1 - R^2 {min(draw['unexplained']):.3g}"
+                   f"{' (kept)' if draw['kept'] else ''}")
+    typer.echo(f"(members are drawn again while none explains {1 - POORLY_FITTED:.0%} of the validation returns' "
+               f"variance, up to the config's redraws; {sum(d['seconds'] for d in draws):.1f} s in all; the kept draw:)")
 
 
 def _print_fit(unexplained: float | None) -> None:

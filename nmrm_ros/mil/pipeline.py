@@ -14,11 +14,13 @@ from .checkpoint import DataInfo, DataSource, EnsembleInfo
 from .data import split_indices
 from .ensemble import MILEnsemble, init_ensemble
 from .evaluation import evaluate
-from .fitted import fitted_members, label_variance
+from .fitted import fitted_members, label_variance, poorly_fitted
 from .run import Run
 from .training import TrainConfig, train_ensemble
 
 SPLIT_MODES = ("shared", "per_member", "bootstrap")
+#: draw d's members (cfg.redraws) are seeded as the first draw's plus d times this
+REDRAW_SEED_STEP = 100_000
 
 
 def member_splits(n: int, members: int, split_seed: int, mode: str,
@@ -63,6 +65,24 @@ def in_step_units(ens: MILEnsemble, ds: TrajectoryDataset, feedback: str) -> tup
                                                   "rewards": "r' / largest_step_reward"}}
 
 
+def _unexplained(result, cfg: TrainConfig) -> list | None:
+    """Each member's best validation criterion over its validation labels' variance (1 - R^2;
+    feedback returns), or None where there is nothing to judge by."""
+    var = result.val_label_variance
+    if cfg.feedback != "returns" or var is None or not all(v > 0 for v in var):
+        return None
+    return [float(v / w) for v, w in zip(result.best_val_loss, var)]
+
+
+def _draws_record(draws: list, chosen) -> dict:
+    """metrics["draws"] when the run drew its members more than once (cfg.redraws): per draw its
+    seeds, epochs, seconds and each member's validation 1 - R^2, and which draw was kept."""
+    if len(draws) == 1:
+        return {}
+    return {"draws": [{"seeds": seeds, "epochs_run": r.epochs_run, "seconds": r.seconds, "unexplained": u,
+                       "kept": r is chosen} for _, seeds, r, u in draws]}
+
+
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
         split_mode: str = "shared", out: str | Path | None = None, progress: bool = True,
         data_source: DataSource | None = None, on_epoch=None, offsets: list[int] | None = None) -> Run:
@@ -77,7 +97,11 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     (K > 1): "all" serves every member; "best" keeps only the one best on validation (a 1-member
     ensemble); "fitted" (feedback returns) leaves out the members that did not fit
     (`fitted.fitted_members`). When members are left out the checkpoint records the candidates trained
-    and which were kept. ValueError (one line) for a dataset of a frozen encoder's features whose
+    and which were kept. cfg.redraws = n > 0 (feedback returns): when no member of a draw explains
+    more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance (all stayed on a
+    plateau), K new members are drawn (seeds + REDRAW_SEED_STEP) and trained, up to n more times;
+    the draw with the best member is kept (metrics["draws"] records them all); not with split_mode
+    per_member, whose members are independent repeats. ValueError (one line) for a dataset of a frozen encoder's features whose
     weights file now holds other weights (`gym_task.encoder_weights_changed`)."""
     changed = encoder_weights_changed(ds.task, ds.meta.get("encoder_sha256"))
     if changed:
@@ -85,12 +109,21 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
                          f"restore that file, or make the dataset again with the new encoder")
     trained_on = cut_episodes(ds, cfg.prefix_fraction, seed=cfg.seed) if cfg.prefix_fraction else ds
     splits, split_seeds = member_splits(len(ds), members, split_seed, split_mode, offsets)
-    seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
+    first_seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = cfg.model_config(architecture, ds.task, ds.state_size)
-    ens = init_ensemble(config, seeds)
     fitted_only = cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1
-    result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
-                            progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
+    draws = []  # (ensemble, seeds, result, 1 - R^2 per member or None), one per draw
+    # per_member splits are the paper's repeats: each is judged as it came, never drawn again
+    for draw in range((cfg.redraws if split_mode != "per_member" else 0) + 1):
+        seeds = [s + REDRAW_SEED_STEP * draw for s in first_seeds]
+        ens = init_ensemble(config, seeds)
+        result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
+                                progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
+        draws.append((ens, seeds, result, _unexplained(result, cfg)))
+        if draws[-1][3] is None or not poorly_fitted(min(draws[-1][3])):
+            break  # a member fitted (or nothing to judge by): no other draw
+    # the draw whose best member is best on the validation criterion
+    ens, seeds, result, _ = min(draws, key=lambda d: min(d[2].best_val_loss))
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     kept, unexplained = list(range(members)), None
@@ -98,7 +131,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         kept = [serving]
     elif fitted_only and all(var > 0 for var in result.val_label_variance):
         # judged as training judged: its validation criterion over its validation labels' variance
-        unexplained = [v / var for v, var in zip(result.best_val_loss, result.val_label_variance)]
+        unexplained = _unexplained(result, cfg)
         kept = fitted_members(unexplained, serving)
     candidates = {}
     if len(kept) < members:  # the checkpoint records the candidates trained and those kept
@@ -127,11 +160,11 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         ensemble=EnsembleInfo(members, serving, seeds, split_seeds, split_mode, **candidates),
         metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                  "best_epochs": result.best_epochs, "still_improving": result.still_improving,
-                 "epochs_run": result.epochs_run, "seconds": result.seconds,
+                 "epochs_run": result.epochs_run, "seconds": sum(d[2].seconds for d in draws),
                  # per epoch, each trained member's validation criterion: how it stopped
                  "val_loss_history": [[float(v) for v in h["val_loss"]] for h in result.history],
                  **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {}),
-                 **served_unexplained, **units})
+                 **served_unexplained, **_draws_record(draws, result), **units})
     if out is not None:
         run.save(out)
     return run

@@ -118,6 +118,7 @@ class TrainConfig:
     feedback: str = "returns"  # what the labels are: returns | preferences | both (see the module docstring)
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
     prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.fit)
+    redraws: int = 0  # pipeline.fit: how many times K new members may be drawn when none fitted (mil.fitted.POORLY_FITTED)
     keep_members: str = "all"  # all: the members' mean is served; best: only the best on validation; fitted (config/mil_training.yaml's default): all but those that did not fit (mil.fitted)
 
     def lr_at(self, epoch: float) -> float:
@@ -164,6 +165,7 @@ class TrainConfig:
                  ("feedback", self.feedback in FEEDBACK, " or ".join(FEEDBACK)),
                  ("preference_weight", self.preference_weight > 0, "> 0"),
                  ("keep_members", self.keep_members in KEEP_MEMBERS, " or ".join(KEEP_MEMBERS)),
+                 ("redraws", self.redraws >= 0, ">= 0"),
                  ("prefix_fraction", 0 <= self.prefix_fraction <= 1
                   and (self.prefix_fraction == 0 or self.feedback == "returns"),
                   "in [0, 1], and 0 unless feedback is returns (it cuts return-labelled episodes)"),
