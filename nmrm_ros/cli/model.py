@@ -144,8 +144,9 @@ def _print_draws(draws: list | None) -> None:
         typer.echo(f"draw {d} (seeds {', '.join(map(str, draw['seeds']))}): {draw['epochs_run']} epochs in "
                    f"{draw['seconds']:.1f} s, best member's validation 1 - R^2 {min(draw['unexplained']):.3g}"
                    f"{' (kept)' if draw['kept'] else ''}")
-    typer.echo(f"(members are drawn again while none explains {1 - POORLY_FITTED:.0%} of the validation returns' "
-               f"variance, up to the config's redraws; {sum(d['seconds'] for d in draws):.1f} s in all; the kept draw:)")
+    typer.echo(f"(new members are drawn while none explains {1 - POORLY_FITTED:.0%} of the validation returns' "
+               f"variance, up to the config's redraws; {sum(d['seconds'] for d in draws):.1f} s in all; "
+               f"the lines below are the kept draw's)")
 
 
 def _print_fit(unexplained: float | None) -> None:

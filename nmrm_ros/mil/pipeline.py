@@ -101,8 +101,9 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance (all stayed on a
     plateau), K new members are drawn (seeds + REDRAW_SEED_STEP) and trained, up to n more times;
     the draw with the best member is kept (metrics["draws"] records them all); not with split_mode
-    per_member, whose members are independent repeats. ValueError (one line) for a dataset of a frozen encoder's features whose
-    weights file now holds other weights (`gym_task.encoder_weights_changed`)."""
+    per_member, whose members are independent repeats. ValueError (one line) for a dataset of a
+    frozen encoder's features whose weights file now holds other weights
+    (`gym_task.encoder_weights_changed`)."""
     changed = encoder_weights_changed(ds.task, ds.meta.get("encoder_sha256"))
     if changed:
         raise ValueError(f"the dataset's states are features of another encoder ({changed}): "
