@@ -98,8 +98,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     ensemble); "fitted" (feedback returns) leaves out the members that did not fit
     (`fitted.fitted_members`). When members are left out the checkpoint records the candidates trained
     and which were kept. cfg.redraws = n > 0 (feedback returns): when no member of a draw explains
-    more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance (all stayed on a
-    plateau), K new members are drawn (seeds + REDRAW_SEED_STEP) and trained, up to n more times;
+    more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance and all of them stopped
+    before the epoch limit (all stayed on a plateau), K new members are drawn (seeds + REDRAW_SEED_STEP) and trained, up to n more times;
     the draw with the best member is kept (metrics["draws"] records them all); not with split_mode
     per_member, whose members are independent repeats. ValueError (one line) for a dataset of a
     frozen encoder's features whose weights file now holds other weights
@@ -121,8 +121,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                                 progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
         draws.append((ens, seeds, result, _unexplained(result, cfg)))
-        if draws[-1][3] is None or not poorly_fitted(min(draws[-1][3])):
-            break  # a member fitted (or nothing to judge by): no other draw
+        if draws[-1][3] is None or not poorly_fitted(min(draws[-1][3])) or any(result.still_improving):
+            break  # a member fitted, nothing to judge by, or the epoch limit came first: no other draw
     # the draw whose best member is best on the validation criterion
     ens, seeds, result, _ = min(draws, key=lambda d: min(d[2].best_val_loss))
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
