@@ -367,5 +367,7 @@ def test_redraws_train_new_members_when_none_fitted_and_keep_the_better_draw(tmp
     assert "draws" not in single.meta.metrics and single.seeds == [3, 4]
     repeats = fit(ds, "csc_lstm", cfg, members=2, split_mode="per_member", progress=False)  # the paper's repeats
     assert "draws" not in repeats.meta.metrics and repeats.seeds == [3, 4]
+    noisy = fit(ds, "csc_lstm", cfg.__class__(**{**cfg.to_dict(), "label_swap": 0.3}), members=2, progress=False)
+    assert "draws" not in noisy.meta.metrics  # labels swapped on purpose: 1 - R^2 cannot tell a plateau
     with pytest.raises(ValueError, match="redraws must be >= 0"):
         load_train_config("push_switch", redraws=-1)

@@ -101,7 +101,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance and all of them stopped
     before the epoch limit (all stayed on a plateau), K new members are drawn (seeds + REDRAW_SEED_STEP) and trained, up to n more times;
     the draw with the best member is kept (metrics["draws"] records them all); not with split_mode
-    per_member, whose members are independent repeats. ValueError (one line) for a dataset of a
+    per_member, whose members are independent repeats, nor with cfg.label_swap > 0. ValueError (one line) for a dataset of a
     frozen encoder's features whose weights file now holds other weights
     (`gym_task.encoder_weights_changed`)."""
     changed = encoder_weights_changed(ds.task, ds.meta.get("encoder_sha256"))
@@ -114,8 +114,10 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     config = cfg.model_config(architecture, ds.task, ds.state_size)
     fitted_only = cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1
     draws = []  # (ensemble, seeds, result, 1 - R^2 per member or None), one per draw
-    # per_member splits are the paper's repeats: each is judged as it came, never drawn again
-    for draw in range((cfg.redraws if split_mode != "per_member" else 0) + 1):
+    # per_member splits are the paper's repeats: each is judged as it came, never drawn again; with
+    # swapped labels (label_swap) the validation labels are noisy on purpose: 1 - R^2 cannot tell a plateau
+    redraws = cfg.redraws if split_mode != "per_member" and cfg.label_swap == 0 else 0
+    for draw in range(redraws + 1):
         seeds = [s + REDRAW_SEED_STEP * draw for s in first_seeds]
         ens = init_ensemble(config, seeds)
         result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
