@@ -117,7 +117,9 @@ class AgentNode(NmrmNode):
         self.last_action: list = [None] * n
         self.sent = 0
         self.dropped = 0
-        self.pubs = [self.create_publisher(AgentAction, robot_topic(r, ACTION), STEP_QOS) for r in self.robots]
+        # robot i's nmrm/action is advertised once its input stream is matched (_open_outputs)
+        self.pubs: list = [None] * n
+        self.pubs_lock = threading.Lock()  # the learner thread publishes too
         self.subs: list = []
         self.label_subs: list = []  # one per robot (learner only): its labeller's TrajectoryReturns
         if p["observe"] not in ("reward_step", "observation"):
@@ -139,6 +141,7 @@ class AgentNode(NmrmNode):
                     EnvObservation, robot_topic(robot, OBSERVATION),
                     lambda m, i=i: self.act(m, m.state, i), STEP_QOS))
         self.sub = self.subs[0]
+        self.output_timer = self.create_timer(0.05, self._open_outputs)
         self.exit_with_upstream(self.subs)
         self.diagnose(lambda: {"actions": self.sent, "dropped": self.dropped, "policy": self.policy},
             rate_of="actions", warn=lambda: f"{self.dropped} observation(s) without an action" if self.dropped else None)
@@ -189,10 +192,30 @@ class AgentNode(NmrmNode):
             return [float(self.rng.integers(self.info.action_size))]
         return [float(x) for x in self.rng.uniform(-1.0, 1.0, 2)]
 
+    def _open_outputs(self) -> None:
+        """Advertise robot i's nmrm/action once robot i's input subscription has a publisher
+        matched. A real-time bridge that waits for an agent (observation_bridge wait_for_agent)
+        waits for this publisher: advertised at start, it let the bridge run a learning agent's
+        4 episodes while DDS had not yet matched the agent's RewardStep subscription (a full test
+        run, two workers: the agent saw no step 0, learnt nothing; the recorder got all 84 steps)."""
+        for i, sub in enumerate(self.subs):
+            if sub.get_publisher_count() > 0:
+                self._output(i)
+        if all(pub is not None for pub in self.pubs):
+            self.output_timer.cancel()
+
+    def _output(self, robot: int):
+        """Robot `robot`'s action publisher, advertised now if it was not yet."""
+        with self.pubs_lock:
+            if self.pubs[robot] is None:
+                self.pubs[robot] = self.create_publisher(AgentAction, robot_topic(self.robots[robot], ACTION),
+                                                         STEP_QOS)
+            return self.pubs[robot]
+
     def publish_action(self, episode: int, step: int, action: list, robot: int = 0) -> None:
         out = AgentAction(episode=episode, step=step, action=action)
         out.header.stamp = self.get_clock().now().to_msg()
-        self.pubs[robot].publish(out)
+        self._output(robot).publish(out)  # an input came, so it is matched: advertised by now or here
         self.sent += 1
 
     def close(self) -> None:
