@@ -25,7 +25,9 @@ states h'_{t+1} recomputed from the stored states, `nmrm_ros.rl.replay_relabel`)
 again, and keeps its networks.
 
 No action is sent for a final (terminated/truncated) input. A repeated input (same episode and
-step, e.g. a re-published observation) gets the same action again.
+step, e.g. a re-published observation) gets the same action again. The action topic is advertised
+only once the input topic has a publisher matched, so a real-time bridge that waits for an agent
+starts when the agent can see its episodes.
 
 `robots` (a fleet): one agent for several namespaced graphs, e.g. [/robot1, /robot2]: it
 subscribes to each robot's `<robot>/nmrm/...` topics and answers each on its own action topic.
@@ -44,6 +46,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from rclpy.publisher import Publisher
 
 from nmrm_msgs.msg import AgentAction, EnvObservation, RewardStep, TrajectoryReturn
 
@@ -204,7 +207,7 @@ class AgentNode(NmrmNode):
         if all(pub is not None for pub in self.pubs):
             self.output_timer.cancel()
 
-    def _output(self, robot: int):
+    def _output(self, robot: int) -> Publisher:
         """Robot `robot`'s action publisher, advertised now if it was not yet."""
         with self.pubs_lock:
             if self.pubs[robot] is None:
