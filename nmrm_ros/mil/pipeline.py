@@ -4,6 +4,7 @@ model), evaluates it on the test split(s) and returns a `Run` (saved if asked)."
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -65,6 +66,15 @@ def in_step_units(ens: MILEnsemble, ds: TrajectoryDataset, feedback: str) -> tup
                                                   "rewards": "r' / largest_step_reward"}}
 
 
+class _Draw(NamedTuple):
+    """One draw of K members (cfg.redraws): the trained ensemble, its seeds, its training result and
+    each member's validation 1 - R^2 (None: nothing to judge by)."""
+    ens: MILEnsemble
+    seeds: list
+    result: object  # training.EnsembleTrainResult
+    unexplained: list | None
+
+
 def _unexplained(result, cfg: TrainConfig) -> list | None:
     """Each member's best validation criterion over its validation labels' variance (1 - R^2;
     feedback returns), or None where there is nothing to judge by."""
@@ -74,13 +84,13 @@ def _unexplained(result, cfg: TrainConfig) -> list | None:
     return [float(v / w) for v, w in zip(result.best_val_loss, var)]
 
 
-def _draws_record(draws: list, chosen) -> dict:
+def _draws_record(draws: list, chosen: _Draw) -> dict:
     """metrics["draws"] when the run drew its members more than once (cfg.redraws): per draw its
     seeds, epochs, seconds and each member's validation 1 - R^2, and which draw was kept."""
     if len(draws) == 1:
         return {}
-    return {"draws": [{"seeds": seeds, "epochs_run": r.epochs_run, "seconds": r.seconds, "unexplained": u,
-                       "kept": r is chosen} for _, seeds, r, u in draws]}
+    return {"draws": [{"seeds": d.seeds, "epochs_run": d.result.epochs_run, "seconds": d.result.seconds,
+                       "unexplained": d.unexplained, "kept": d is chosen} for d in draws]}
 
 
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
@@ -98,10 +108,11 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     ensemble); "fitted" (feedback returns) leaves out the members that did not fit
     (`fitted.fitted_members`). When members are left out the checkpoint records the candidates trained
     and which were kept. cfg.redraws = n > 0 (feedback returns): when no member of a draw explains
-    more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance and all of them stopped
-    before the epoch limit (all stayed on a plateau), K new members are drawn (seeds + REDRAW_SEED_STEP) and trained, up to n more times;
-    the draw with the best member is kept (metrics["draws"] records them all); not with split_mode
-    per_member, whose members are independent repeats, nor with cfg.label_swap > 0. ValueError (one line) for a dataset of a
+    more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance and all of them
+    stopped before the epoch limit (all stayed on a plateau), K new members are drawn (seeds +
+    REDRAW_SEED_STEP) and trained, up to n more times; the draw with the best member is kept
+    (metrics["draws"] records them all); not with split_mode per_member, whose members are
+    independent repeats, nor with cfg.label_swap > 0. ValueError (one line) for a dataset of a
     frozen encoder's features whose weights file now holds other weights
     (`gym_task.encoder_weights_changed`)."""
     changed = encoder_weights_changed(ds.task, ds.meta.get("encoder_sha256"))
@@ -113,7 +124,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     first_seeds = [cfg.seed + m for m in (range(members) if offsets is None else offsets)]
     config = cfg.model_config(architecture, ds.task, ds.state_size)
     fitted_only = cfg.keep_members == "fitted" and cfg.feedback == "returns" and members > 1
-    draws = []  # (ensemble, seeds, result, 1 - R^2 per member or None), one per draw
+    draws: list[_Draw] = []
     # per_member splits are the paper's repeats: each is judged as it came, never drawn again; with
     # swapped labels (label_swap) the validation labels are noisy on purpose: 1 - R^2 cannot tell a plateau
     redraws = cfg.redraws if split_mode != "per_member" and cfg.label_swap == 0 else 0
@@ -122,19 +133,20 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         ens = init_ensemble(config, seeds)
         result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
                                 progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
-        draws.append((ens, seeds, result, _unexplained(result, cfg)))
-        if draws[-1][3] is None or not poorly_fitted(min(draws[-1][3])) or any(result.still_improving):
+        draws.append(_Draw(ens, seeds, result, _unexplained(result, cfg)))
+        u = draws[-1].unexplained
+        if u is None or not poorly_fitted(min(u)) or any(result.still_improving):
             break  # a member fitted, nothing to judge by, or the epoch limit came first: no other draw
-    # the draw whose best member is best on the validation criterion
-    ens, seeds, result, _ = min(draws, key=lambda d: min(d[2].best_val_loss))
+    chosen = min(draws, key=lambda d: min(d.result.best_val_loss))  # its best member is best on validation
+    ens, seeds, result = chosen.ens, chosen.seeds, chosen.result
     serving = int(np.argmin(result.best_val_loss))  # the best on the validation criterion
     ens.serving_member.fill_(serving)
     kept, unexplained = list(range(members)), None
     if cfg.keep_members == "best":  # the others were candidates: one model is kept
         kept = [serving]
-    elif fitted_only and all(var > 0 for var in result.val_label_variance):
+    elif fitted_only and chosen.unexplained is not None:
         # judged as training judged: its validation criterion over its validation labels' variance
-        unexplained = _unexplained(result, cfg)
+        unexplained = chosen.unexplained
         kept = fitted_members(unexplained, serving)
     candidates = {}
     if len(kept) < members:  # the checkpoint records the candidates trained and those kept
@@ -163,11 +175,11 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         ensemble=EnsembleInfo(members, serving, seeds, split_seeds, split_mode, **candidates),
         metrics={"test": test, "val": val, "member_test": member_test, "member_val": member_val,
                  "best_epochs": result.best_epochs, "still_improving": result.still_improving,
-                 "epochs_run": result.epochs_run, "seconds": sum(d[2].seconds for d in draws),
+                 "epochs_run": result.epochs_run, "seconds": sum(d.result.seconds for d in draws),
                  # per epoch, each trained member's validation criterion: how it stopped
                  "val_loss_history": [[float(v) for v in h["val_loss"]] for h in result.history],
                  **({"candidate_unexplained_variance": unexplained} if unexplained is not None else {}),
-                 **served_unexplained, **_draws_record(draws, result), **units})
+                 **served_unexplained, **_draws_record(draws, chosen), **units})
     if out is not None:
         run.save(out)
     return run
