@@ -194,6 +194,11 @@ def test_an_untrained_networks_values_over_the_first_rewards_tiny_bound_are_not_
     report = collapse_report(_curve(healthy, q=q, bounds=bounds), bound_high=100.0)
     assert not report.collapsed and not report.q_beyond_bound, report.summary()
     assert "max Q 70 (episode 399) within its bound 100" in report.summary()  # the largest, not episode 0's
+    # when the largest is episode 0's, above its tiny bound by less than the margin, the line says so
+    flat = np.concatenate([[0.07], np.full(399, 0.01)])
+    summary = collapse_report(_curve(healthy, q=flat, bounds=bounds), bound_high=100.0).summary()
+    assert ("max Q 0.07 (episode 0) above its bound then (0.02) by less than 1% of the run's largest "
+            "bound (100): not a runaway") in summary, summary
     # a value that does run away, early or late, still is one
     q_run = q.copy()
     q_run[1] = 5.0

@@ -70,12 +70,22 @@ class CollapseReport:
     def collapsed(self) -> bool:
         return self.dip is not None or self.q_beyond_bound
 
+    def _against_bound(self) -> str:
+        """How a max Q that did not run away stands against its bound: within it, or above it by
+        less than the margin (BOUND_MARGIN of the run's largest bound)."""
+        if self.bound_high is None:
+            return ""
+        if self.q_peak <= self.bound_high + 1e-6:
+            return f" within its bound {self.bound_high:.3g}"
+        scale = self.bound_high if self.bound_scale is None else self.bound_scale
+        return (f" above its bound then ({self.bound_high:.3g}) by less than {BOUND_MARGIN:.0%} of the "
+                f"run's largest bound ({scale:.3g}): not a runaway")
+
     def summary(self) -> str:
         kept = ("the last policy is kept" if self.kept_episode is None
                 else f"kept the policy of episode {self.kept_episode} (policy.zip; the last: last_policy.zip)")
         at = "" if self.q_episode is None else f" (episode {self.q_episode})"
-        q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}{at}" + (
-            "" if self.bound_high is None else f" within its bound {self.bound_high:.3g}")
+        q = "" if self.q_peak is None else f", max Q {self.q_peak:.3g}{at}" + self._against_bound()
         if not self.collapsed and not self.learnt and self.best is not None:
             best, at, first = self.best
             return (f"did not learn: the best {self.window} episodes' {self.judged_by} return ({best:.3g}, "
