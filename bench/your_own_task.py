@@ -7,6 +7,9 @@
     # any task and oracle, results in bench/results/your_own_task/NAME/ (e.g. the fake robot's delivery):
     .venv/bin/python bench/your_own_task.py models --name delivery --repeats 3 \
         --task "nmrm_ros.robots.delivery:DeliveryEnv,max_steps=200,xy=0/1" --oracle nmrm_ros.robots.delivery:oracle
+    # a paper task on data seeds no other bench uses, at the paper's 5000 episodes, with its own oracle and defaults:
+    .venv/bin/python bench/your_own_task.py models --name charger_new --task charger --oracle '' \
+        --episodes 5000 --first-data-seed 30 --repeats 3 --archs csc_lstm
     # agents with other RL settings than config/rl.yaml's, beside the default ones (results in agents_<settings>/):
     .venv/bin/python bench/your_own_task.py agents --rl-set learning_rate=1e-3 gamma=0.99 ...
 
@@ -15,9 +18,10 @@ step pays 1 once the cart has crossed the centre line in both directions); --tas
 measure any other. Datasets are screened by
 return bins from random-policy pools (nmrm_ros.datasets.return_screening); episodes vary in length.
 
-models: repeat r trains the CSC LSTM and the Markovian Instance Space NN (config your_own_task:
-the mean of 3 models, member j weight seed r + 1000 j; `nmrm_ros.mil.fit`, as `nmrm train`: the
-served member is the best on validation) on split r of a dataset of data seed r (N episodes),
+models: repeat r trains the CSC LSTM and the Markovian Instance Space NN (the task's config, for a
+user's task your_own_task: the mean of 3 models, member j weight seed r + 1000 j; `nmrm_ros.mil.fit`,
+as `nmrm train`: the served member is the best on validation) on split r of a dataset of data seed
+r (--first-data-seed F: F + r; --episodes episodes, default 2000),
 scored on its test split and on a held-out dataset of data seed 999. Models trained before
 2026-12-06 served member 0 (their checkpoints record it; they are not retrained).
 agents: double DQN (config/rl.yaml, 400 episodes; --rl-set changes settings) on the repeat-0 CSC model's reward (served
@@ -57,6 +61,8 @@ DATA = ROOT / "runs" / "your_own_task"
 TASK = "gym:CartPole-v1,max_episode_steps=200"
 ORACLE = str(ROOT / "examples" / "cartpole_crossings.py") + ":oracle"
 
+DEFAULT_EPISODES = 2000  # a repeat's dataset
+
 
 @dataclass(frozen=True)
 class Setting:
@@ -65,6 +71,11 @@ class Setting:
     oracle: str = ORACLE
     name: str = ""  # results in RESULTS/NAME/, data in DATA/NAME/ ("": the CartPole example's own)
     rl_set: tuple = ()  # agents: (setting, value) pairs changing config/rl.yaml's
+    episodes: int = DEFAULT_EPISODES  # models: episodes of each repeat's dataset
+    first_data_seed: int = 0  # models: repeat r's dataset has data seed first_data_seed + r
+
+    def data_seed(self, r: int) -> int:
+        return self.first_data_seed + r
 
     @property
     def rl_tag(self) -> str:
@@ -82,7 +93,7 @@ class Setting:
     @property
     def data(self) -> Path:
         return DATA / self.name if self.name else DATA
-N, HELD_OUT_SEED, HELD_OUT_N = 2000, 999, 1000
+HELD_OUT_SEED, HELD_OUT_N = 999, 1000
 ARCHS = ("csc_lstm", "instance_nn")
 REWARDS = ("model", "oracle", "oracle-no-hidden")
 
@@ -111,7 +122,7 @@ def run_model(job: tuple) -> dict:
     torch.set_num_threads(1)
     from nmrm_ros.mil import evaluate, fit, load_train_config
 
-    ds, held = dataset(setting, N, r), dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
+    ds, held = dataset(setting, setting.episodes, setting.data_seed(r)), dataset(setting, HELD_OUT_N, HELD_OUT_SEED)
     cfg = load_train_config(setting.task, seed=r)
     # weight seeds r + 1000 j (cfg.seed = r), split r; seconds: CPU time of fit (the training and its
     # evaluation of each member, a few seconds; as wall time on 1 thread)
@@ -122,7 +133,7 @@ def run_model(job: tuple) -> dict:
     result, seeds, on_test, on_held = run.train, run.meta.ensemble.seeds, run.meta.metrics["test"], evaluate(run.model, held)
     path = checkpoint_path(setting, arch, r)
     run.save(path)
-    res = {"arch": arch, "repeat": r, "data_seed": r, "n": N, "weight_seeds": seeds,
+    res = {"arch": arch, "repeat": r, "data_seed": setting.data_seed(r), "n": setting.episodes, "weight_seeds": seeds,
            "held_out_seed": HELD_OUT_SEED, "test_return_mse": on_test["return_mse"],
            "test_reward_mse": on_test["reward_mse"], "held_return_mse": on_held["return_mse"],
            "held_reward_mse": on_held["reward_mse"], "epochs": result.epochs_run,
@@ -245,9 +256,11 @@ def late_dip(curve: Path) -> float:
 
 
 def report(setting: Setting) -> str:
-    oracle = "examples/cartpole_crossings.py:oracle" if setting.oracle == ORACLE else setting.oracle
+    oracle = ("examples/cartpole_crossings.py:oracle" if setting.oracle == ORACLE
+              else setting.oracle or "the task's own")
     lines = [f"# bench/your_own_task.py: task {setting.task}, oracle {oracle}",
-             f"# models: repeat r on data seed r ({N} episodes, split r); held-out: {HELD_OUT_N} episodes of "
+             f"# models: repeat r on data seed {setting.first_data_seed or ''}{' + ' if setting.first_data_seed else ''}r "
+             f"({setting.episodes} episodes, split r); held-out: {HELD_OUT_N} episodes of "
              f"data seed {HELD_OUT_SEED}; mean ± SEM [worst]",
              f"{'model':12s} {'n':>2s} {'held-out return MSE':>26s} {'held-out reward MSE':>26s} "
              f"{'test return MSE':>24s} {'s/run':>6s}"]
@@ -364,23 +377,31 @@ def rl_settings(items: list[str]) -> tuple:
     return tuple(sorted(pairs.items()))
 
 
-def named_task(name: str, task: str, oracle: str) -> tuple[str, str]:
-    """The task and oracle of the results NAME/: recorded in NAME/setting.json by its first run;
-    later runs (and --report) may leave out --task and --oracle, but not give others."""
+def named_task(name: str, task: str, oracle: str, episodes: int | None = None,
+               first_data_seed: int | None = None) -> tuple[str, str, int, int]:
+    """The task, oracle, episodes per dataset and first data seed of the results NAME/: recorded in
+    NAME/setting.json by its first run (episodes 2000 and data seed 0 when not given); later runs (and
+    --report) may leave them out, but not give others."""
     if not name:
-        return task, oracle
+        return task, oracle, episodes or DEFAULT_EPISODES, first_data_seed or 0
     record = RESULTS / name / "setting.json"
     if not record.is_file():
         if (task, oracle) == (TASK, ORACLE):
             raise SystemExit(f"--name {name}: no results yet; give its --task and --oracle")
         record.parent.mkdir(parents=True, exist_ok=True)
-        record.write_text(json.dumps({"task": task, "oracle": oracle}, indent=1))
-        return task, oracle
+        known = {"task": task, "oracle": oracle}
+        known.update({k: v for k, v in (("episodes", episodes), ("first_data_seed", first_data_seed)) if v is not None})
+        record.write_text(json.dumps(known, indent=1))
+        return task, oracle, episodes or DEFAULT_EPISODES, first_data_seed or 0
     known = json.loads(record.read_text())
     if (task, oracle) != (TASK, ORACLE) and (task, oracle) != (known["task"], known["oracle"]):
-        raise SystemExit(f"--name {name} holds task {known['task']} with oracle {known['oracle']}, "
-                         f"not {task} with {oracle}: give another --name")
-    return known["task"], known["oracle"]
+        raise SystemExit(f"--name {name} holds task {known['task']} with oracle {known['oracle']!r}, "
+                         f"not {task} with {oracle!r}: give another --name")
+    held = {"episodes": known.get("episodes", DEFAULT_EPISODES), "first_data_seed": known.get("first_data_seed", 0)}
+    for key, given in (("episodes", episodes), ("first_data_seed", first_data_seed)):
+        if given is not None and given != held[key]:
+            raise SystemExit(f"--name {name} holds {key.replace('_', '-')} {held[key]}, not {given}: give another --name")
+    return known["task"], known["oracle"], held["episodes"], held["first_data_seed"]
 
 
 def main() -> None:
@@ -397,15 +418,28 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true")
     parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
-    parser.add_argument("--oracle", default=ORACLE, help="oracle <module>:<function> or <file.py>:<function>")
+    parser.add_argument("--oracle", default=ORACLE, help="oracle <module>:<function> or <file.py>:<function>; "
+                        "'' for a task's own (e.g. --task charger --oracle '')")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help=f"models: episodes per dataset (default {DEFAULT_EPISODES}; recorded for --name)")
+    parser.add_argument("--first-data-seed", type=int, default=None,
+                        help="models: repeat r's dataset has data seed FIRST + r (default 0; recorded for --name), "
+                             "e.g. data seeds no other bench uses")
     parser.add_argument("--name", default="", help="results in bench/results/your_own_task/NAME/ (needed with --task)")
     parser.add_argument("--rl-set", nargs="*", default=[], metavar="SETTING=VALUE",
                         help="agents: change config/rl.yaml's settings (e.g. learning_rate=1e-3); results in agents_<settings>/")
     args = parser.parse_args()
     if (args.task, args.oracle) != (TASK, ORACLE) and not args.name:
         raise SystemExit("give --name for another task or oracle (its results go to bench/results/your_own_task/NAME/)")
-    task, oracle = named_task(args.name, args.task, args.oracle)
-    setting = Setting(task, oracle, args.name, rl_settings(args.rl_set))
+    if (args.episodes is not None or args.first_data_seed is not None) and not args.name:
+        raise SystemExit("--episodes and --first-data-seed need --name (the CartPole example's results are 2000 "
+                         "episodes from data seed 0)")
+    if args.episodes is not None and args.episodes < 10:
+        raise SystemExit(f"--episodes must be at least 10, got {args.episodes}")
+    if args.first_data_seed is not None and not 0 <= args.first_data_seed < 2**31 - 1000:
+        raise SystemExit(f"--first-data-seed must be a seed >= 0, got {args.first_data_seed}")
+    task, oracle, episodes, first = named_task(args.name, args.task, args.oracle, args.episodes, args.first_data_seed)
+    setting = Setting(task, oracle, args.name, rl_settings(args.rl_set), episodes, first)
     results = setting.results
     results.mkdir(parents=True, exist_ok=True)
     if args.what == "models":
