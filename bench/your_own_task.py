@@ -313,6 +313,46 @@ def report(setting: Setting) -> str:
     return "\n".join(lines)
 
 
+def summary() -> str:
+    """Issue 50's table: one row per measured task (the CartPole example and every NAME/ with a
+    setting.json), agents with config/rl.yaml's settings only: the agents on the offline models of
+    every data seed and the loop's kept policies, as fractions of the oracle-with-hidden agents'
+    mean greedy oracle return (median, worst), with their collapses; a model's data seeds, the
+    loop's labels and seconds."""
+    names = [""] + sorted(p.parent.name for p in RESULTS.glob("*/setting.json"))
+    lines = ["# bench/your_own_task.py --summary: greedy oracle return (50 episodes) as a fraction of the "
+             "oracle-with-hidden agents' mean; median / worst [collapsed of known]; targets 90% / 80%, 0 collapses",
+             f"{'name':18s} {'oracle agents':>15s} {'data seeds':>10s} {'agents on offline models':>26s} "
+             f"{'the loop (labels, s/run)':>40s}"]
+    for name in names:
+        known = json.loads((RESULTS / name / "setting.json").read_text()) if name else {}
+        setting = Setting(known.get("task", TASK), known.get("oracle", ORACLE), name,
+                          episodes=known.get("episodes", DEFAULT_EPISODES),
+                          first_data_seed=known.get("first_data_seed", 0))
+        where = setting.results
+        oracle = [json.loads(p.read_text())["greedy_oracle_return"] for p in sorted(where.glob("agent_oracle_s*.json"))]
+        if not oracle:
+            continue
+        ref = float(np.mean(oracle))
+        offline = [json.loads(p.read_text()) for p in sorted(where.glob("agent_model_*s*.json"))]
+        repeats = sorted({r.get("model_repeat") or 0 for r in offline})
+        seeds = ",".join(str(setting.data_seed(r)) for r in repeats) or "-"
+
+        def cell(runs: list[dict]) -> str:
+            if not runs:
+                return "-"
+            v = np.array([r["greedy_oracle_return"] for r in runs]) / ref
+            known_collapse = [c for c in map(collapsed, runs) if c is not None]
+            c = f"{sum(known_collapse)}/{len(known_collapse)}" if known_collapse else "?"
+            return f"n {len(v)}: {np.median(v):4.0%} / {v.min():4.0%} [{c}]"
+
+        loops = [json.loads(p.read_text()) for p in sorted(where.glob("loop_*_s*.json"))]
+        budget = "".join(sorted({p.name.split("_")[1] for p in where.glob("loop_*_s*.json")}))
+        loop = (f"{cell(loops)} ({budget}, {np.mean([r['seconds'] for r in loops]):.0f} s)" if loops else "-")
+        lines.append(f"{name or 'cartpole':18s} {ref:7.2f} (n {len(oracle)}) {seeds:>10s} {cell(offline):>26s} {loop:>40s}")
+    return "\n".join(lines)
+
+
 def replaced_model(setting: Setting, runs: list[dict]) -> str:
     """'; on a replaced model' when some agents learnt on a checkpoint of their model repeat that has
     since been trained again (its weights differ from the one on this machine); '' otherwise,
@@ -417,6 +457,8 @@ def main() -> None:
     parser.add_argument("--labels-per-round", type=int, default=500, help="loop: labels per round")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--report", action="store_true")
+    parser.add_argument("--summary", action="store_true",
+                        help="issue 50's table over every task measured (summary.txt), then stop")
     parser.add_argument("--task", default=TASK, help="task spec (default: the CartPole example)")
     parser.add_argument("--oracle", default=ORACLE, help="oracle <module>:<function> or <file.py>:<function>; "
                         "'' for a task's own (e.g. --task charger --oracle '')")
@@ -431,6 +473,11 @@ def main() -> None:
     args = parser.parse_args()
     if (args.task, args.oracle) != (TASK, ORACLE) and not args.name:
         raise SystemExit("give --name for another task or oracle (its results go to bench/results/your_own_task/NAME/)")
+    if args.summary:
+        text = summary()
+        print(text)
+        (RESULTS / "summary.txt").write_text(text + "\n")
+        return
     if (args.episodes is not None or args.first_data_seed is not None) and not args.name:
         raise SystemExit("--episodes and --first-data-seed need --name (the CartPole example's results are 2000 "
                          "episodes from data seed 0)")
