@@ -5,6 +5,7 @@ file or where nothing can be created. A path option that this test does not know
 
 from __future__ import annotations
 
+import json
 import signal
 from pathlib import Path
 
@@ -83,8 +84,9 @@ def good(tmp_path_factory):
     """A small checkpoint and a policy to pair with the wrong path."""
     d = tmp_path_factory.mktemp("good")
     code, err = run_nmrm(["train", "--task", "key", "--n", "50", "--epochs", "1", "--ensemble", "1",
-                          "--out", str(d / "m")])
+                          "--redraws", "0", "--out", str(d / "m")])
     assert code == 0, err
+    assert json.loads((d / "m.json").read_text())["train_config"]["redraws"] == 0  # the option reaches the run
     code, err = run_nmrm(["rl", "train", "--task", "key", "--reward", "oracle", "--episodes", "1",
                           "--out", str(d / "agent")])
     assert code == 0, err

@@ -34,6 +34,10 @@ def train(
     keep_members: str = typer.Option(None, help="of an ensemble's members, which are served: fitted (all but one "
                                      "that did not fit: validation 1 - R^2 over 0.01 and over 4x the best member's) "
                                      "| all | best (only the best on validation); default: the task's config"),
+    redraws: int = typer.Option(None, min=0, help="when no member explains 75% of the validation returns' variance "
+                                "(stuck on the Markovian plateau) and none stopped at the epoch limit, draw K new "
+                                "members up to this many times and keep the best draw (0: never); default: the "
+                                "task's config"),
     label_swap: float = typer.Option(None, min=0.0, max=1.0, help="label noise: swap this fraction of the training and "
                                      "validation labels between trajectories (paper Sec. 5.2)"),
     reward_l1: float = typer.Option(None, min=0.0, help="override the weight of the L1 sparsity prior on "
@@ -65,7 +69,7 @@ def train(
     settings = dict(max_epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, label_swap=label_swap,
                     reward_l1=reward_l1, feedback=feedback, output_activation=output_activation,
                     fe_sizes=fe_sizes, head_sizes=head_sizes, prefix_fraction=prefix_fraction,
-                    keep_members=keep_members)
+                    keep_members=keep_members, redraws=redraws)
     if task:  # the settings are checked before any data is loaded or generated
         load_train_config(task, config, **settings)
     if bag:
