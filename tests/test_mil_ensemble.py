@@ -348,6 +348,8 @@ def test_redraws_train_new_members_when_none_fitted_and_keep_the_better_draw(tmp
     draws = run.meta.metrics["draws"]
     step = pipeline.REDRAW_SEED_STEP
     assert [d["seeds"] for d in draws] == [[3, 4], [3 + step, 4 + step]]
+    # the second draw with cfg.redraw_patience (2) times the patience and the plateau patience
+    assert [list(d["patience"]) for d in draws] == [[2, cfg.plateau_patience], [4, 2 * cfg.plateau_patience]]
     assert all(d["epochs_run"] < 20 and len(d["unexplained"]) == 2 and min(d["unexplained"]) > 0.25 for d in draws)
     kept = [d for d in draws if d["kept"]]
     assert len(kept) == 1 and kept[0]["unexplained"] == min((d["unexplained"] for d in draws), key=min)
@@ -356,7 +358,8 @@ def test_redraws_train_new_members_when_none_fitted_and_keep_the_better_draw(tmp
     assert run.meta.metrics["seconds"] == pytest.approx(sum(d["seconds"] for d in draws))
     _print_run(run, cfg)
     printed = capsys.readouterr().out
-    assert f"draw 2 (seeds {3 + step}, {4 + step}): {draws[1]['epochs_run']} epochs" in printed and "(kept)" in printed
+    assert (f"draw 2 (seeds {3 + step}, {4 + step}, patience 4 (plateau {2 * cfg.plateau_patience})): "
+            f"{draws[1]['epochs_run']} epochs") in printed and "(kept)" in printed
     capped = fit(ds, "csc_lstm", load_train_config("push_switch", max_epochs=2, redraws=1), members=2, progress=False)
     assert "draws" not in capped.meta.metrics and any(capped.train.still_improving)  # the epoch limit ended it
     # one draw when a member fitted, or with redraws 0
@@ -371,3 +374,5 @@ def test_redraws_train_new_members_when_none_fitted_and_keep_the_better_draw(tmp
     assert "draws" not in noisy.meta.metrics  # labels swapped on purpose: 1 - R^2 cannot tell a plateau
     with pytest.raises(ValueError, match="redraws must be >= 0"):
         load_train_config("push_switch", redraws=-1)
+    with pytest.raises(ValueError, match="redraw_patience must be >= 1"):
+        load_train_config("push_switch", redraw_patience=0.5)

@@ -145,11 +145,13 @@ def _print_draws(draws: list | None) -> None:
     from ..mil.fitted import POORLY_FITTED
 
     for d, draw in enumerate(draws, 1):
-        typer.echo(f"draw {d} (seeds {', '.join(map(str, draw['seeds']))}): {draw['epochs_run']} epochs in "
+        patience = draw.get("patience")  # recorded since redraw_patience
+        patience = f", patience {patience[0]} (plateau {patience[1]})" if patience else ""
+        typer.echo(f"draw {d} (seeds {', '.join(map(str, draw['seeds']))}{patience}): {draw['epochs_run']} epochs in "
                    f"{draw['seconds']:.1f} s, best member's validation 1 - R^2 {min(draw['unexplained']):.3g}"
                    f"{' (kept)' if draw['kept'] else ''}")
-    typer.echo(f"(new members are drawn while none explains {1 - POORLY_FITTED:.0%} of the validation returns' "
-               f"variance, up to the config's redraws; {sum(d['seconds'] for d in draws):.1f} s in all; "
+    typer.echo(f"(new members are drawn, each draw with more patience, while none explains {1 - POORLY_FITTED:.0%} "
+               f"of the validation returns' variance, up to the config's redraws; {sum(d['seconds'] for d in draws):.1f} s in all; "
                f"the lines below are the kept draw's)")
 
 

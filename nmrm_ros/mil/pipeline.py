@@ -3,6 +3,7 @@ model), evaluates it on the test split(s) and returns a `Run` (saved if asked)."
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -73,6 +74,7 @@ class _Draw(NamedTuple):
     seeds: list
     result: object  # training.EnsembleTrainResult
     unexplained: list | None
+    patience: tuple  # (patience, plateau_patience) it trained with
 
 
 def _unexplained(result, cfg: TrainConfig) -> list | None:
@@ -84,13 +86,23 @@ def _unexplained(result, cfg: TrainConfig) -> list | None:
     return [float(v / w) for v, w in zip(result.best_val_loss, var)]
 
 
+def _patient(cfg: TrainConfig, draw: int) -> TrainConfig:
+    """The config of draw `draw` (0: cfg): patience and plateau_patience times
+    cfg.redraw_patience ** draw."""
+    if draw == 0 or cfg.redraw_patience == 1:
+        return cfg
+    factor = cfg.redraw_patience ** draw
+    return replace(cfg, patience=max(1, round(cfg.patience * factor)),
+                   plateau_patience=max(1, round(cfg.plateau_patience * factor)))
+
+
 def _draws_record(draws: list, chosen: _Draw) -> dict:
     """metrics["draws"] when the run drew its members more than once (cfg.redraws): per draw its
     seeds, epochs, seconds and each member's validation 1 - R^2, and which draw was kept."""
     if len(draws) == 1:
         return {}
     return {"draws": [{"seeds": d.seeds, "epochs_run": d.result.epochs_run, "seconds": d.result.seconds,
-                       "unexplained": d.unexplained, "kept": d is chosen} for d in draws]}
+                       "patience": list(d.patience), "unexplained": d.unexplained, "kept": d is chosen} for d in draws]}
 
 
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
@@ -110,7 +122,8 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     and which were kept. cfg.redraws = n > 0 (feedback returns): when no member of a draw explains
     more than 1 - `fitted.POORLY_FITTED` of its validation returns' variance and all of them
     stopped before the epoch limit (all stayed on a plateau), K new members are drawn (seeds +
-    REDRAW_SEED_STEP) and trained, up to n more times; the draw with the best member is kept
+    REDRAW_SEED_STEP) and trained, with cfg.redraw_patience times the patience (and plateau
+    patience) of the draw before, up to n more times; the draw with the best member is kept
     (metrics["draws"] records them all); not with split_mode per_member, whose members are
     independent repeats, nor with cfg.label_swap > 0. ValueError (one line) for a dataset of a
     frozen encoder's features whose weights file now holds other weights
@@ -130,10 +143,10 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
     redraws = cfg.redraws if split_mode != "per_member" and cfg.label_swap == 0 else 0
     for draw in range(redraws + 1):
         seeds = [s + REDRAW_SEED_STEP * draw for s in first_seeds]
-        ens = init_ensemble(config, seeds)
-        result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], cfg, seeds=seeds,
-                                progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
-        draws.append(_Draw(ens, seeds, result, _unexplained(result, cfg)))
+        ens, patient = init_ensemble(config, seeds), _patient(cfg, draw)
+        result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], patient,
+                                seeds=seeds, progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
+        draws.append(_Draw(ens, seeds, result, _unexplained(result, cfg), (patient.patience, patient.plateau_patience)))
         u = draws[-1].unexplained
         if u is None or not poorly_fitted(min(u)) or any(result.still_improving):
             break  # a member fitted, nothing to judge by, or the epoch limit came first: no other draw

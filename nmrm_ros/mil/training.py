@@ -119,6 +119,12 @@ class TrainConfig:
     preference_weight: float = 1.0  # feedback both: weight of the preference cross-entropy beside the return MSE
     prefix_fraction: float = 0.0  # fraction of the training and validation episodes cut short (pipeline.fit)
     redraws: int = 0  # pipeline.fit: how many times K new members may be drawn when none fitted (mil.fitted.POORLY_FITTED)
+    # pipeline.fit: draw d trains with patience and plateau_patience times redraw_patience ** d (a draw
+    # that stayed on the plateau says the data needs more time than the defaults give). 2.0 is the
+    # default here, not only in config/mil_training.yaml, so that models recorded before it existed
+    # are not stale: it changes nothing in a run without a redraw (runs that redrew before 2026-12-07's
+    # later commits used 1.0: bench/results/time_to_accuracy/redraw/ patrol s22)
+    redraw_patience: float = 2.0
     keep_members: str = "all"  # all: the members' mean is served; best: only the best on validation; fitted (config/mil_training.yaml's default): all but those that did not fit (mil.fitted)
 
     def lr_at(self, epoch: float) -> float:
@@ -166,6 +172,7 @@ class TrainConfig:
                  ("preference_weight", self.preference_weight > 0, "> 0"),
                  ("keep_members", self.keep_members in KEEP_MEMBERS, " or ".join(KEEP_MEMBERS)),
                  ("redraws", self.redraws >= 0, ">= 0"),
+                 ("redraw_patience", self.redraw_patience >= 1, ">= 1"),
                  ("prefix_fraction", 0 <= self.prefix_fraction <= 1
                   and (self.prefix_fraction == 0 or self.feedback == "returns"),
                   "in [0, 1], and 0 unless feedback is returns (it cuts return-labelled episodes)"),
