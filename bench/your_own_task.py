@@ -325,10 +325,9 @@ def summary() -> str:
              f"{'name':18s} {'oracle agents':>15s} {'data seeds':>10s} {'agents on offline models':>26s} "
              f"{'the loop (labels, s/run)':>40s}"]
     for name in names:
-        known = json.loads((RESULTS / name / "setting.json").read_text()) if name else {}
-        setting = Setting(known.get("task", TASK), known.get("oracle", ORACLE), name,
-                          episodes=known.get("episodes", DEFAULT_EPISODES),
-                          first_data_seed=known.get("first_data_seed", 0))
+        known = recorded_setting(name)
+        setting = Setting(known["task"], known["oracle"], name, episodes=known["episodes"],
+                          first_data_seed=known["first_data_seed"])
         where = setting.results
         oracle = [json.loads(p.read_text())["greedy_oracle_return"] for p in sorted(where.glob("agent_oracle_s*.json"))]
         if not oracle:
@@ -417,6 +416,13 @@ def rl_settings(items: list[str]) -> tuple:
     return tuple(sorted(pairs.items()))
 
 
+def recorded_setting(name: str) -> dict:
+    """NAME/setting.json's task, oracle, episodes and first_data_seed, the defaults where it has
+    none (the CartPole example's for name '')."""
+    known = json.loads((RESULTS / name / "setting.json").read_text()) if name else {"task": TASK, "oracle": ORACLE}
+    return {"episodes": DEFAULT_EPISODES, "first_data_seed": 0, **known}
+
+
 def named_task(name: str, task: str, oracle: str, episodes: int | None = None,
                first_data_seed: int | None = None) -> tuple[str, str, int, int]:
     """The task, oracle, episodes per dataset and first data seed of the results NAME/: recorded in
@@ -433,15 +439,14 @@ def named_task(name: str, task: str, oracle: str, episodes: int | None = None,
         known.update({k: v for k, v in (("episodes", episodes), ("first_data_seed", first_data_seed)) if v is not None})
         record.write_text(json.dumps(known, indent=1))
         return task, oracle, episodes or DEFAULT_EPISODES, first_data_seed or 0
-    known = json.loads(record.read_text())
+    known = recorded_setting(name)
     if (task, oracle) != (TASK, ORACLE) and (task, oracle) != (known["task"], known["oracle"]):
         raise SystemExit(f"--name {name} holds task {known['task']} with oracle {known['oracle']!r}, "
                          f"not {task} with {oracle!r}: give another --name")
-    held = {"episodes": known.get("episodes", DEFAULT_EPISODES), "first_data_seed": known.get("first_data_seed", 0)}
     for key, given in (("episodes", episodes), ("first_data_seed", first_data_seed)):
-        if given is not None and given != held[key]:
-            raise SystemExit(f"--name {name} holds {key.replace('_', '-')} {held[key]}, not {given}: give another --name")
-    return known["task"], known["oracle"], held["episodes"], held["first_data_seed"]
+        if given is not None and given != known[key]:
+            raise SystemExit(f"--name {name} holds {key.replace('_', '-')} {known[key]}, not {given}: give another --name")
+    return known["task"], known["oracle"], known["episodes"], known["first_data_seed"]
 
 
 def main() -> None:

@@ -145,8 +145,8 @@ def _print_draws(draws: list | None) -> None:
     from ..mil.fitted import POORLY_FITTED
 
     for d, draw in enumerate(draws, 1):
-        patience = draw.get("patience")  # recorded since redraw_patience
-        patience = f", patience {patience[0]} (plateau {patience[1]})" if patience else ""
+        recorded = draw.get("patience")  # [patience, plateau patience], recorded since redraw_patience
+        patience = f", patience {recorded[0]} (plateau {recorded[1]})" if recorded else ""
         typer.echo(f"draw {d} (seeds {', '.join(map(str, draw['seeds']))}{patience}): {draw['epochs_run']} epochs in "
                    f"{draw['seconds']:.1f} s, best member's validation 1 - R^2 {min(draw['unexplained']):.3g}"
                    f"{' (kept)' if draw['kept'] else ''}")

@@ -74,7 +74,7 @@ class _Draw(NamedTuple):
     seeds: list
     result: object  # training.EnsembleTrainResult
     unexplained: list | None
-    patience: tuple  # (patience, plateau_patience) it trained with
+    cfg: TrainConfig  # what it trained with (`_patient`)
 
 
 def _unexplained(result, cfg: TrainConfig) -> list | None:
@@ -102,7 +102,7 @@ def _draws_record(draws: list, chosen: _Draw) -> dict:
     if len(draws) == 1:
         return {}
     return {"draws": [{"seeds": d.seeds, "epochs_run": d.result.epochs_run, "seconds": d.result.seconds,
-                       "patience": list(d.patience), "unexplained": d.unexplained, "kept": d is chosen} for d in draws]}
+                       "patience": [d.cfg.patience, d.cfg.plateau_patience], "unexplained": d.unexplained, "kept": d is chosen} for d in draws]}
 
 
 def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int = 1, split_seed: int = 0,
@@ -146,7 +146,7 @@ def fit(ds: TrajectoryDataset, architecture: str, cfg: TrainConfig, members: int
         ens, patient = init_ensemble(config, seeds), _patient(cfg, draw)
         result = train_ensemble(ens, trained_on, [(tr, va) for tr, va, _ in splits], patient,
                                 seeds=seeds, progress=progress, on_epoch=on_epoch, leave_out_unfitted=fitted_only)
-        draws.append(_Draw(ens, seeds, result, _unexplained(result, cfg), (patient.patience, patient.plateau_patience)))
+        draws.append(_Draw(ens, seeds, result, _unexplained(result, cfg), patient))
         u = draws[-1].unexplained
         if u is None or not poorly_fitted(min(u)) or any(result.still_improving):
             break  # a member fitted, nothing to judge by, or the epoch limit came first: no other draw
