@@ -4,7 +4,6 @@ observations and labels itself, so it knows exactly where each episode boundary 
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -16,10 +15,10 @@ from nmrm_ros.labelling import LabelQueue
 from nmrm_ros.labelling.active import DisagreementScorer
 from nmrm_ros.labelling.training_set import TrainingSet
 from nmrm_ros.mil import OnlineRewardModel, Run
-from nmrm_ros.mil.checkpoint import EnsembleInfo
+from nmrm_ros.mil.checkpoint import EnsembleInfo, load_checkpoint
 from nmrm_ros.mil.ensemble import init_ensemble
 from nmrm_ros.mil.models import model_config
-from nmrm_ros.mil.retrain import retrain_splits
+from nmrm_ros.mil.retrain import retrain, retrain_splits
 from nmrm_ros.ros.topics import OBSERVATION, TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN
 
 
@@ -62,6 +61,29 @@ def test_retrain_splits_hold_out_a_fifth_and_bootstrap_the_rest():
     assert len({tuple(t) for t, _ in splits}) == 3        # each member its own resample
     with pytest.raises(ValueError, match="at least 2"):
         retrain_splits(1, 3, 0)
+
+
+def test_a_warm_started_retrain_keeps_serving_the_member_it_continues(tmp_path):
+    """The agent learnt on the serving member's hidden units: a retrain that continues the ensemble
+    serves the same member (its successor), whichever member is now best on validation; a fresh
+    one, or one model copied into every member, serves the best."""
+    from nmrm_ros.datasets.toy import make_toy_dataset
+
+    ds = make_toy_dataset("dial", 40, seed=0)
+    first = retrain(ds, tmp_path / "v0", members=3, max_epochs=2, seed=0)
+    assert first["start"].startswith("fresh")
+    for served in range(3):
+        ens, _ = load_checkpoint(first["checkpoint"], task="dial")
+        ens.serving_member.fill_(served)
+        Run.of(ens, "dial", ensemble=EnsembleInfo(3, served, seeds=[0, 1, 2])).save(tmp_path / f"s{served}")
+        again = retrain(ds, tmp_path / f"v1_{served}", members=3, max_epochs=2, seed=1, init=str(tmp_path / f"s{served}.pt"))
+        assert again["start"].startswith("warm-started")
+        assert int(load_checkpoint(again["checkpoint"], task="dial")[0].serving_member) == served
+    one = init_ensemble(model_config("csc_lstm", "dial", ds.state_size), [5])
+    Run.of(one, "dial").save(tmp_path / "one")
+    spread = retrain(ds, tmp_path / "v1_one", members=3, max_epochs=2, seed=1, init=str(tmp_path / "one.pt"))
+    model, meta = load_checkpoint(spread["checkpoint"], task="dial")
+    assert int(model.serving_member) == int(np.argmin(meta.metrics["member_val_loss"]))
 
 
 def test_queue_asks_first_where_the_members_disagree(tmp_path):

@@ -8,7 +8,13 @@ what to ask a person next). There is no test split: every label is precious, and
 labels are what the model is checked against.
 
 Warm start: from `init` (the previous version, or a starting checkpoint) when it is an ensemble
-of the same architecture, size and member count, else a fresh one (and the result says so).
+of the same architecture, size and member count, else a fresh one (and the result says so). A
+warm-started ensemble keeps serving the member `init` served: each member continues its
+predecessor, so the served hidden state keeps the meaning an agent learnt on. Switching to another
+member's hidden units (a fresh model: the best on validation) left an agent's policy arbitrary:
+in Charger's loop (data seed 31) the switch from member 0 to 1 at the last swap took the agent
+from 36 to 0 per episode for 40 episodes despite the catch-up; kept on member 0, 37.5 from the
+first episode (docs/guide/agents.md).
 """
 
 from __future__ import annotations
@@ -45,28 +51,32 @@ def retrain_splits(n: int, members: int, seed: int, bootstrap: bool = True) -> l
             for m in range(members)]
 
 
-def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILEnsemble | None, str]:
+def _warm_start(init: str | None, task: str, config, members: int) -> tuple[MILEnsemble | None, str, int | None]:
+    """(the ensemble to continue or None, how training starts, the member to keep serving or
+    None: the best on validation; one model copied into every member leaves that open)."""
     if not init:
-        return None, "fresh (no starting checkpoint)"
+        return None, "fresh (no starting checkpoint)", None
     try:
         model, meta = load_checkpoint(init, task=task)
     except CheckpointError as exc:
-        return None, f"not warm-started: {exc}"
+        return None, f"not warm-started: {exc}", None
+    serving = int(model.serving_member)
     if model.members == 1 and members > 1:  # one model starts every member
         model = MILEnsemble.from_members([model.member(0)] * members)
+        serving = None
     same = (model.members == members and model.config.architecture == config.architecture
             and model.config.input_size == config.input_size
             and model.config.hidden_size == config.hidden_size)
     if not same:
         return None, (f"not warm-started: {init} is a {model.members}-member "
-                      f"{model.config.architecture}, not a {members}-member {config.architecture}")
+                      f"{model.config.architecture}, not a {members}-member {config.architecture}"), None
     units = meta.metrics.get("step_units") or {}
     if "largest_step_reward" in units:  # back to the scale its comparisons reached, where training left it
         from .calibration import Calibration, calibrate
 
         g = 1.0 / float(units["largest_step_reward"])
         model = calibrate(model, Calibration(np.full(model.members, g), np.zeros(model.members), 0))
-    return model.train(), f"warm-started from {init}"
+    return model.train(), f"warm-started from {init}", serving
 
 
 def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lstm", members: int = 5,
@@ -87,7 +97,7 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     if bootstrap is None:
         bootstrap = feedback == "returns"
     splits = retrain_splits(len(ds), members, seed, bootstrap=bootstrap)
-    ens, start = _warm_start(init, ds.task, config, members)
+    ens, start, kept_serving = _warm_start(init, ds.task, config, members)
     seeds = [seed + m for m in range(members)]
     fresh = ens is None
     if fresh:
@@ -95,7 +105,8 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
     result = train_ensemble(ens, ds, splits, cfg, seeds=seeds, progress=False, fresh=fresh)
     val = splits[0][1]
     member_val = list(result.best_val_loss)
-    serving = int(np.argmin(member_val))  # the best on the validation criterion
+    # the member it continues (module docstring), else the best on the validation criterion
+    serving = int(np.argmin(member_val)) if kept_serving is None else kept_serving
     ens.serving_member.fill_(serving)
     ens, units = in_step_units(ens, ds, feedback)
     val_metrics = evaluate(ens, ds.subset(val))
@@ -105,7 +116,8 @@ def retrain(ds: TrajectoryDataset, out: str | Path, architecture: str = "csc_lst
                "val_return_mse": val_metrics["return_mse"],
                "val_preference_accuracy": val_metrics["preference_accuracy"],
                "val_return_std": val_metrics.get("return_std", 0.0), "best_epochs": result.best_epochs,
-               "epochs_run": result.epochs_run, "start": start,
+               "epochs_run": result.epochs_run, "start": start, "serving_member": serving,
+               "serving": "the member it continues" if kept_serving is not None else "the best on validation",
                "seconds": round(time.perf_counter() - t0, 2)}
     run = Run.of(
         ens, ds.task, train=result, seed=seed, split_seed=seed, train_config=cfg.to_dict(),

@@ -268,7 +268,8 @@ class TrainerNode(NmrmNode):
             self.get_logger().info(
                 f"{name}: {summary['labels']} labels, {summary['comparisons']} comparisons, {fit} "
                 f"({summary['validation_bags']} bag(s)), members' "
-                f"spread {summary['val_return_std']:.3f}, {summary['seconds']:.1f} s, {summary['start']}")
+                f"spread {summary['val_return_std']:.3f}, {summary['seconds']:.1f} s, {summary['start']}, "
+                f"serving member {summary['serving_member']} ({summary['serving']})")
             for client in self.param_clients.values():
                 self._tell(client, self.latest)
         self.maybe_retrain()

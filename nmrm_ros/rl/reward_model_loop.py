@@ -272,7 +272,8 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
                  if feedback == "preferences" else f"validation return MSE {summary['val_return_mse']:.4f}")
         log(f"round {k}: {what} from {source} (mean return {rnd.label_mean_return:.3f}), "
             f"model {k} on {total}: {score} "
-            f"({summary['epochs_run']} epochs, {summary['start'].split(':')[0]}, {summary['seconds']:.0f} s)")
+            f"({summary['epochs_run']} epochs, {summary['start'].split(':')[0]}, serving member "
+            f"{summary['serving_member']}, {summary['seconds']:.0f} s)")
         write()
         return summary["checkpoint"]
 
