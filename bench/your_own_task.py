@@ -189,6 +189,7 @@ def run_loop_job(job: tuple) -> dict:
            "greedy_oracle_return": result.greedy_oracle_return, "final_oracle_return": result.final_oracle_return,
            "round_oracle_returns": [r.mean_oracle_return for r in result.rounds],
            "round_val_return_mse": [r.training.get("val_return_mse") for r in result.rounds],
+           "serving_members": [r.training.get("serving_member") for r in result.rounds],
            "seconds": result.seconds, "collapsed": result.collapsed, "collapse": result.collapse,
            "late_dip": late_dip(out / "agent" / "curve.csv"), "policy": str(out / "agent" / "policy.zip"),
            "rl_config": json.loads((out / "agent" / "agent.json").read_text())["config"]}
@@ -307,7 +308,7 @@ def report(setting: Setting) -> str:
             v = [r["greedy_oracle_return"] for r in runs]
             lines.append(f"{'loop ' + budget:18s} seeds {[r['seed'] for r in runs]}: {np.mean(v):7.2f} [{min(v):7.2f}] "
                          f"(last 50 training episodes {np.mean([r['final_oracle_return'] for r in runs]):.2f}; "
-                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run){collapses(runs)}")
+                         f"{np.mean([r['seconds'] for r in runs]):.0f} s/run){collapses(runs)}{switched_members(runs)}")
             if oracle:
                 lines.append(against_oracle(f"the loop ({budget} labels, round 0 on data seed = agent seed)", runs, oracle))
     return "\n".join(lines)
@@ -348,8 +349,27 @@ def summary() -> str:
         loops = [json.loads(p.read_text()) for p in sorted(where.glob("loop_*_s*.json"))]
         budget = "".join(sorted({p.name.split("_")[1] for p in where.glob("loop_*_s*.json")}))
         loop = (f"{cell(loops)} ({budget}, {np.mean([r['seconds'] for r in loops]):.0f} s)" if loops else "-")
+        old_rule = sum(map(member_switching, loops))
+        loop += f" ({old_rule} before the kept member)" if old_rule else ""
         lines.append(f"{name or 'cartpole':18s} {ref:7.2f} (n {len(oracle)}) {seeds:>10s} {cell(offline):>26s} {loop:>40s}")
     return "\n".join(lines)
+
+
+def member_switching(loop: dict) -> bool:
+    """Whether a loop ran before its retrains kept the served member (2026-12-07,
+    nmrm_ros.mil.retrain): neither it nor its loop.json (if still on this machine) records which
+    member each round's model served."""
+    if "serving_members" in loop:
+        return False
+    loop_json = Path(loop["policy"]).parent.parent / "loop.json"
+    rounds = json.loads(loop_json.read_text()).get("rounds", []) if loop_json.is_file() else []
+    return not rounds or any("serving_member" not in r.get("training", {}) for r in rounds)
+
+
+def switched_members(loops: list[dict]) -> str:
+    """'; k of n before the kept member' for loops run when a retrain could switch the served member."""
+    old = sum(map(member_switching, loops))
+    return f"; {old} of {len(loops)} before the kept member (docs/guide/loop.md)" if old else ""
 
 
 def replaced_model(setting: Setting, runs: list[dict]) -> str:
