@@ -13,8 +13,8 @@ warm-started ensemble keeps serving the member `init` served: each member contin
 predecessor, so the served hidden state keeps the meaning an agent learnt on. Switching to another
 member's hidden units (a fresh model: the best on validation) left an agent's policy arbitrary:
 in Charger's loop (data seed 31) the switch from member 0 to 1 at the last swap took the agent
-from 36 to 0 per episode for 40 episodes despite the catch-up; kept on member 0, 37.5 from the
-first episode (docs/guide/agents.md).
+from 36.4 to 0 per episode for 40 episodes despite the catch-up; with model 0's member kept
+throughout, 36.5 before and 36.7 after (docs/guide/loop.md, `bench/loop_swaps.py`).
 """
 
 from __future__ import annotations
