@@ -349,7 +349,7 @@ def summary() -> str:
         loops = [json.loads(p.read_text()) for p in sorted(where.glob("loop_*_s*.json"))]
         budget = "".join(sorted({p.name.split("_")[1] for p in where.glob("loop_*_s*.json")}))
         loop = (f"{cell(loops)} ({budget}, {np.mean([r['seconds'] for r in loops]):.0f} s)" if loops else "-")
-        old_rule = sum(map(member_switching, loops))
+        old_rule = before_kept_member(loops)
         loop += f" ({old_rule} before the kept member)" if old_rule else ""
         lines.append(f"{name or 'cartpole':18s} {ref:7.2f} (n {len(oracle)}) {seeds:>10s} {cell(offline):>26s} {loop:>40s}")
     return "\n".join(lines)
@@ -366,9 +366,14 @@ def member_switching(loop: dict) -> bool:
     return not rounds or any("serving_member" not in r.get("training", {}) for r in rounds)
 
 
+def before_kept_member(loops: list[dict]) -> int:
+    """How many of `loops` ran when a retrain could switch the served member."""
+    return sum(map(member_switching, loops))
+
+
 def switched_members(loops: list[dict]) -> str:
     """'; k of n before the kept member' for loops run when a retrain could switch the served member."""
-    old = sum(map(member_switching, loops))
+    old = before_kept_member(loops)
     return f"; {old} of {len(loops)} before the kept member (docs/guide/loop.md)" if old else ""
 
 
