@@ -124,6 +124,9 @@ def main() -> None:
     task = args.task or meta["task"]
     seed = meta["seed"] if args.seed is None else args.seed
     oracle = meta.get("oracle", "") if args.oracle is None else args.oracle
+    if len(loop_models(args.loop)) < int(meta["rounds_planned"]):
+        parser.error(f"{args.loop} holds {len(loop_models(args.loop))} models of {meta['rounds_planned']} rounds: "
+                     "give a finished `nmrm loop` directory")
     name = f"{args.loop.resolve().parent.parent.name}_{args.loop.name}"
     RESULTS.mkdir(parents=True, exist_ok=True)
     for variant in args.variants:
