@@ -191,6 +191,7 @@ def run_loop_job(job: tuple) -> dict:
            "round_val_return_mse": [r.training.get("val_return_mse") for r in result.rounds],
            "serving_members": [r.training.get("serving_member") for r in result.rounds],
            "seconds": result.seconds, "collapsed": result.collapsed, "collapse": result.collapse,
+           "last_model_agrees": result.last_model_agrees, "last_model_check": result.last_model_check,
            "late_dip": late_dip(out / "agent" / "curve.csv"), "policy": str(out / "agent" / "policy.zip"),
            "rl_config": json.loads((out / "agent" / "agent.json").read_text())["config"]}
     (setting.results / f"{loop_name(seed, rounds, labels)}.json").write_text(json.dumps(res, indent=1))

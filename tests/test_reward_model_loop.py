@@ -17,7 +17,7 @@ from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper, load_rl_config, make_algorithm, make_reward_env
 from nmrm_ros.datasets import TrajectoryDataset
 from nmrm_ros.rl.replay_relabel import adopt_model, catch_up, relabel_replay_buffer
-from nmrm_ros.rl.reward_model_loop import round_pairs
+from nmrm_ros.rl.reward_model_loop import last_model_check, round_pairs
 from nmrm_ros.tasks import make_env, task_info
 
 D = task_info("key").state_size  # the raw state's part of an observation
@@ -135,9 +135,28 @@ def test_nmrm_loop_runs_rounds_and_writes_what_it_says(tmp_path):
     assert [(r["first_episode"], r["last_episode"]) for r in summary["rounds"]] == [(0, 2), (2, 4), (4, 6)]
     assert summary["rounds"][1]["training"]["start"].startswith("warm-started from")
     assert isinstance(summary["collapsed"], bool) and summary["collapse"]
+    assert "last model (model 2) on the agent's last 2 episodes: paid" in res.stdout
+    assert isinstance(summary["last_model_agrees"], bool) and summary["last_model_check"]
     for name in ("labels.npz", "model_0.pt", "model_2.pt", "agent/policy.zip", "agent/curve.csv"):
         assert (out / name).stat().st_size > 0
     assert len((out / "agent/curve.csv").read_text().splitlines()) == 7
+
+
+def test_the_loop_says_when_its_last_model_still_overpays_the_agent():
+    """The delivery robot's loop of seed 0 (runs/your_own_task, 2026-12-07): model 3 paid the
+    agent's last 50 episodes 172.6 where the oracle paid 138.7; the same loop's seed 1, 167.3 / 161.4."""
+    rng = np.random.default_rng(0)
+    first = rng.uniform(0, 30, 500)  # round 0's random episodes: scale max(15, 8.7)
+    judged = np.full(100, 138.7)
+    hacked = last_model_check(judged + 33.9, judged, 3, 95.8, first)  # RMSE 9.8: tolerance 29.4
+    assert not hacked.passed and hacked.episodes == 50
+    assert "gap +33.90, tolerance 29.36): FAIL: the model is still wrong where the agent goes" in hacked.summary(4)
+    assert "(--rounds 5)" in hacked.summary(4)
+    fine = last_model_check(judged + 5.9, judged, 3, 39.8, first)
+    assert fine.passed and fine.summary().endswith("PASS")
+    assert last_model_check(judged - 33.9, judged, 3, 95.8, first).passed is False  # underpaying is wrong too
+    small = last_model_check(np.full(10, 1.04), np.ones(10), 0, 0.0, np.zeros(5))
+    assert small.tolerance == pytest.approx(0.05) and small.passed  # 5% of the oracle's scale
 
 
 def test_a_rounds_comparisons_each_pair_a_new_episode_with_another():
@@ -164,6 +183,7 @@ def test_nmrm_loop_learns_from_a_teachers_comparisons(tmp_path):
     assert [r["total_labels"] for r in summary["rounds"]] == [20, 40]
     assert [r["training"]["feedback"] for r in summary["rounds"]] == ["preferences"] * 2
     assert summary["teacher"]["beta"] == "inf"
+    assert summary["last_model_agrees"] is None and "last model" not in res.stdout  # its own units
     ds = TrajectoryDataset.load(out / "labels.npz")
     assert len(ds) == 40 and ds.preferences.shape == (40, 3)
     assert (ds.preferences[:20, :2] < 20).all() and (ds.preferences[20:, :2] >= 20).any(axis=1).all()

@@ -94,6 +94,13 @@ class UnitsMap:
                 f"R' = {self.gain:.3g} R {self.offset:+.3g}, fitted on {self.episodes} screened episodes")
 
 
+def gap_tolerance(rmse: float, scale: float) -> float:
+    """How far a model may pay an agent's episodes from the oracle's returns before the agent is
+    said to have learnt the model's mistake: max(3 x the model's return RMSE where no agent chose
+    the episodes, 5% of the oracle's return scale). `nmrm check` and the loop's last-model check."""
+    return max(3.0 * rmse, 0.05 * scale)
+
+
 @dataclass
 class HackingCheck:
     """Mean learnt and oracle returns of the greedy agent's episodes and of random-policy ones
@@ -114,7 +121,7 @@ class HackingCheck:
 
     @property
     def tolerance(self) -> float:
-        return max(3.0 * self.random_rmse, 0.05 * self.scale)
+        return gap_tolerance(self.random_rmse, self.scale)
 
     @property
     def passed(self) -> bool:

@@ -38,7 +38,12 @@ Output in `out/`: labels.npz (every label, in order; round r's are rows [r N, (r
 model_r.{pt,json} per round, agent/ (policy.zip, curve.csv, agent.json as `nmrm rl train`'s) and
 loop.json (per round: labels, training summary, the agent's episodes and their mean oracle return;
 the final oracle return and a greedy evaluation of the kept policy, `agent/policy.zip`, with the
-model it acted on, `kept_checkpoint`; the agent's collapse report).
+model it acted on, `kept_checkpoint`; the agent's collapse report; the last model's check).
+
+The loop ends by checking its last model where the agent went (`LastModelCheck`): what it paid the
+agent's last (up to 50) training episodes against the oracle's returns of the same episodes, with
+`nmrm check`'s tolerance (`acceptance.gap_tolerance`). The kept policy is chosen by min(learnt,
+judged) and survives a model that overpays it; the model does not, and a FAIL says so.
 """
 
 from __future__ import annotations
@@ -85,6 +90,8 @@ class LoopResult:
     collapse: str = ""         # the agent's collapse report (`nmrm_ros.rl.collapse`)
     collapsed: bool = False    # that report found a late dip or Q beyond its bound
     kept_checkpoint: str = ""  # the model the kept policy (agent/policy.zip) acted on
+    last_model_check: str = ""   # LastModelCheck.summary() ("" with comparisons: other units)
+    last_model_agrees: bool | None = None  # that check passed (None: not made)
 
     def summary(self) -> str:
         prefs = self.feedback == "preferences"
@@ -99,7 +106,60 @@ class LoopResult:
                      f"on 50 new episodes {self.greedy_oracle_return:.3f}; {self.seconds:.0f} s")
         if self.collapse:
             lines.append(self.collapse)
+        if self.last_model_check:
+            lines.append(self.last_model_check)
         return "\n".join(lines)
+
+
+@dataclass
+class LastModelCheck:
+    """The last model against the oracle on the agent's own last episodes (returns feedback: the
+    model was trained in the oracle's units). learnt, judged: mean returns of those episodes;
+    rmse: the model's validation return RMSE; scale: the oracle's return scale (max of the mean
+    |judged|, round 0's mean |return| and its standard deviation), as `nmrm check`'s."""
+
+    model: int
+    episodes: int
+    learnt: float
+    judged: float
+    rmse: float
+    scale: float
+
+    @property
+    def gap(self) -> float:
+        return self.learnt - self.judged
+
+    @property
+    def tolerance(self) -> float:
+        from .acceptance import gap_tolerance
+
+        return gap_tolerance(self.rmse, self.scale)
+
+    @property
+    def passed(self) -> bool:
+        return bool(abs(self.gap) <= self.tolerance)
+
+    def summary(self, rounds: int = 0) -> str:
+        line = (f"last model (model {self.model}) on the agent's last {self.episodes} episodes: paid "
+                f"{self.learnt:.2f} by the model, {self.judged:.2f} by the oracle (gap {self.gap:+.2f}, "
+                f"tolerance {self.tolerance:.2f}): ")
+        if self.passed:
+            return line + "PASS"
+        more = f" (--rounds {rounds + 1})" if rounds else ""
+        return line + ("FAIL: the model is still wrong where the agent goes. The kept policy was chosen by "
+                       "the oracle's returns too, but do not train new agents on this model: more rounds "
+                       f"label where it is wrong{more}")
+
+
+def last_model_check(learnt: np.ndarray, judged: np.ndarray, model: int, val_return_mse: float,
+                     first_returns: np.ndarray) -> LastModelCheck:
+    """`LastModelCheck` of the agent's episodes served by the last model (learnt, judged: their
+    returns, (n,), in order; the last 50 are used) and round 0's labelled returns (the scale)."""
+    learnt, judged = np.asarray(learnt, float)[-50:], np.asarray(judged, float)[-50:]
+    first = np.asarray(first_returns, float)
+    scale = max(float(np.abs(judged).mean()), float(np.abs(first).mean()), float(first.std()), 1e-9)
+    return LastModelCheck(model, len(learnt), float(learnt.mean()), float(judged.mean()),
+                          float(np.sqrt(max(val_return_mse, 0.0))), scale)
 
 
 def agent_episodes(agent, wrapper_env, episodes: int, seed: int) -> list:
@@ -310,6 +370,12 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     kept = run.kept_checkpoint or result.rounds[-1].checkpoint
     result.kept_checkpoint, result.collapse = str(kept), run.collapse.summary() if run.collapse else ""
     result.collapsed = bool(run.collapse and run.collapse.collapsed)
+    last = result.rounds[-1]
+    learnt = np.array([r.learnt_return for r in run.curve.records])[last.first_episode:last.last_episode]
+    if feedback != "preferences" and len(learnt) and np.isfinite(last.training.get("val_return_mse", np.nan)):
+        check = last_model_check(learnt, returns[last.first_episode:last.last_episode], last.index,
+                                 float(last.training["val_return_mse"]), labels[0].returns)
+        result.last_model_check, result.last_model_agrees = check.summary(rounds), check.passed
     ev = evaluate_agent(run.model, task, kept, reward="model", oracle=oracle)
     result.greedy_oracle_return = float(np.mean(ev.returns))
     result.seconds = time.perf_counter() - t0
