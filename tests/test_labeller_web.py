@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nmrm_ros.testing.graph import Capture, executable, finish, start
+from nmrm_ros.testing.graph import Capture, finish, start
 from nmrm_ros.bags import iter_decoded
 from nmrm_ros.labelling import LabelError, LabelQueue, LabelStore
 
@@ -361,10 +361,11 @@ def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
 def test_a_pixel_task_is_played_from_the_frames_the_model_sees(ros_domain, tmp_path):
     """key_pixels through the graph (env_sim render:=true): the page's episodes carry no pixel
     numbers (no plot, no arena: the frames are the view) and their frames are the observed image,
-    each pixel drawn 4x4; a label is taken as for any task."""
+    each pixel drawn 4x4; a label is taken as for any task. Every episode is gold (gold_every 1):
+    the oracle judges it by its privileged state (the positions), not the pixels."""
     from PIL import Image
 
-    node = WebNode(tmp_path / "labels", task="key_pixels")
+    node = WebNode(tmp_path / "labels", task="key_pixels", gold_every=1)
     try:
         play_episodes(1, task="key_pixels", render=True, render_format="png", render_width=240)
         queue = node.wait_for_queue(1)
@@ -384,8 +385,11 @@ def test_a_pixel_task_is_played_from_the_frames_the_model_sees(ros_domain, tmp_p
         status, answer, _ = node.request("/api/label", {"episode": episode, "return": 3.0},
                                          headers={"Origin": node.base})
         assert status == 200 and answer["return"] == 3.0, answer
+        status, team, _ = node.request("/api/team")
+        assert status == 200 and team["gold_episodes"] == 1, team
     finally:
-        node.stop()
+        out = node.stop()
+    assert "is not a gold episode" not in out, out
 
 
 def test_an_episode_of_your_own_task_is_plotted_and_played_as_video(ros_domain, tmp_path):

@@ -66,6 +66,7 @@ from sensor_msgs.msg import CompressedImage
 
 from ..feedback import unknown_feedback
 from ..ros.episodes import EpisodeFollower, Kind
+from ..ros.messages import oracle_state
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import SERVER_TLS, NodeError, Param, live_parameter, require_task, start_server
 from ..tls import LOOPBACK
@@ -189,6 +190,7 @@ class LabellerWebNode(NmrmNode):
         self._offer_waiting_episodes(int(p["max_episodes"]))
         self.follower = EpisodeFollower()
         self.states: list = []
+        self.oracle_states: list = []  # gold_every: what the oracle steps with, per step
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
         self.pref_pub = self.create_publisher(TrajectoryPreference, TRAJECTORY_PREFERENCE, STEP_QOS)
         self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
@@ -263,15 +265,20 @@ class LabellerWebNode(NmrmNode):
                 self.get_logger().warning(f"episode {msg.episode} not offered for labelling: {why}")
             return
         if kind is Kind.START:
-            self.states = []
+            self.states, self.oracle_states = [], []
         self.states.append(state)
+        if self.gold_every:  # what the oracle steps with: the privileged state where the task has one
+            try:
+                self.oracle_states.append(oracle_state(msg, state, self.info.privileged_size))
+            except ValueError as exc:
+                self.oracle_states.append(str(exc))
         if msg.terminated or msg.truncated:
             self.follower.finish()
             states, finished_at = np.stack(self.states), time.time()
             if msg.step > 0:
                 self.finished += 1
                 if self.gold_every and self.finished % self.gold_every == 0:
-                    self._make_gold(int(msg.episode), states)
+                    self._make_gold(int(msg.episode), self.oracle_states, len(states))
             if msg.step > 0 and self.queue.add(int(msg.episode), states, finished_at=finished_at):
                 try:
                     self.waiting.save(int(msg.episode), states, finished_at)
@@ -279,21 +286,25 @@ class LabellerWebNode(NmrmNode):
                     self.get_logger().warning(f"episode {msg.episode} not kept on disk (a restart will "
                                               f"not offer it again): {exc}")
                 self.get_logger().info(f"episode {msg.episode} ({msg.step} steps) waits for a label")
-            self.states = []
+            self.states, self.oracle_states = [], []
 
-    def _make_gold(self, episode: int, states: np.ndarray) -> None:
+    def _make_gold(self, episode: int, oracle_states: list, length: int) -> None:
         """Episode `episode` is gold: its oracle return is kept (and written to the gold bag), and
-        it is asked of everyone."""
+        it is asked of everyone. oracle_states: per step what the oracle steps with (the privileged
+        state where the task has one; a str: why a step had none); length: the episode's states."""
         from ..oracles import OracleError
 
+        missing = next((s for s in oracle_states if isinstance(s, str)), None)
         try:
-            value = float(self.gold_oracle.label(states[None, :-1]).returns[0])
+            if missing is not None:
+                raise ValueError(missing)
+            value = float(self.gold_oracle.label(np.stack(oracle_states)[None, :-1]).returns[0])
         except (OracleError, ValueError) as exc:
             self.get_logger().warning(f"episode {episode} is not a gold episode: {exc}")
             return
         self.gold_returns[episode] = value
         self.queue.gold.add(episode)
-        self.gold_store.append(self.task, episode, len(states) - 1, value)
+        self.gold_store.append(self.task, episode, length - 1, value)
 
     def _gold_report(self) -> dict:
         """/api/team's gold figures: per person, gold episodes labelled and the mean absolute error."""
