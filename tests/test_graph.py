@@ -132,6 +132,44 @@ def test_graph_model_mode_equals_batched_forward(graph_capture, key_checkpoint):
         assert rs[0].source == "key_csc"
 
 
+@pytest.fixture(scope="module")
+def pixel_checkpoint(tmp_path_factory):
+    """A small key_pixels CSC ensemble (2 members, 1 epoch): a model that reads the 32 x 32 image."""
+    from nmrm_ros.tasks.pixel_navigation import pixel_dataset
+
+    px = pixel_dataset(generate_screened("key", 40, seed=5), "key_pixels")
+    cfg = load_train_config("key_pixels", max_epochs=1, threads=1)
+    return fit(px, "csc_lstm", cfg, members=2, out=tmp_path_factory.mktemp("px") / "key_pixels_csc",
+               progress=False).checkpoint
+
+
+def test_a_pixel_model_serves_on_the_graph_what_it_serves_an_agents_wrapper(graph_capture, pixel_checkpoint):
+    """key_pixels in model mode: each episode's RewardSteps (reward, served state, augmented state
+    [image, served]) equal what the agents' wrapper serves on the same episode (seed e, the same
+    actions), and the batched forward of the observed images."""
+    from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper
+    from nmrm_ros.tasks import make_env
+
+    capture = graph_capture
+    run_graph(capture, "mode:=model", f"checkpoint:={pixel_checkpoint}", "task:=key_pixels")
+    eps = check_lockstep(capture)
+    model, meta = load_checkpoint(pixel_checkpoint, task="key_pixels")
+    wrapper = RewardModelWrapper(EpisodeSeeds(make_env("key_pixels"), 0), pixel_checkpoint, task="key_pixels")
+    for e, (states, _, _) in eps.items():
+        assert states.shape == (101, 32 * 32 * 3)
+        rs = sorted((m for m in capture.msgs["reward_step"] if m.episode == e), key=lambda m: m.step)
+        rewards, served = batched_reference(model, states, meta.served_state)
+        np.testing.assert_allclose([m.reward for m in rs], rewards, atol=1e-4)
+        np.testing.assert_allclose([list(m.hidden) for m in rs], served, atol=1e-5)
+        actions = {m.step: m.action for m in capture.msgs["action"] if m.episode == e}
+        obs, _ = wrapper.reset(seed=e)
+        np.testing.assert_allclose(obs, rs[0].augmented_state, atol=1e-5)
+        for t in range(100):
+            obs, reward, *_ = wrapper.step(int(actions[t][0]))
+            assert reward == pytest.approx(rs[t].reward, abs=1e-4)
+            np.testing.assert_allclose(obs, rs[t + 1].augmented_state, atol=1e-5)
+
+
 def test_bad_observations_are_dropped_and_counted(capture):
     """Wrong state size, NaN and a skipped step break the episode in the reward model and the
     labeller: logged, counted, nothing published for it; a good episode afterwards works."""
