@@ -168,3 +168,81 @@ def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_stat
     bridge = start("observation_bridge", spec=tmp_path / "camera.yaml", task="key")
     code, out = finish(bridge)
     assert code == 2 and "the spec's cameras make 32x32x3; task key has no image in its state" in out, out
+
+
+def test_a_camera_robot_with_the_tasks_frozen_encoder_makes_its_features(ros_domain, tmp_path, monkeypatch):
+    """observation_bridge (a real process) for a task spec with a user's frozen encoder
+    (`encoder=`, `encoder_weights=`): each observation's state is the encoder's features of the
+    camera's resized frame, as the task's own env gives them; a camera of another size than the
+    encoder reads is a one-line error at start."""
+    import os
+    import textwrap
+
+    import torch
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CompressedImage
+
+    from nmrm_ros.tasks.frozen_encoder import task_encoder
+    from nmrm_ros.testing.graph import Capture, finish, start
+
+    (tmp_path / "robot_room.py").write_text(textwrap.dedent('''
+        import gymnasium as gym
+        import numpy as np
+
+        class RobotRoom(gym.Env):
+            """The robot's simulator: a 32 x 32 camera image."""
+            observation_space = gym.spaces.Box(0, 255, (32, 32, 3), np.uint8)
+            action_space = gym.spaces.Discrete(2)
+            def reset(self, *, seed=None, options=None):
+                super().reset(seed=seed)
+                return np.zeros((32, 32, 3), np.uint8), {}
+            def step(self, action):
+                return np.zeros((32, 32, 3), np.uint8), 0.0, False, False, {}
+    '''))
+    (tmp_path / "robot_encoder.py").write_text(textwrap.dedent('''
+        import torch
+
+        class Encoder(torch.nn.Module):
+            def __init__(self):
+                super().__init__()
+                self.conv = torch.nn.Conv2d(3, 2, 8, stride=8)
+            def forward(self, x):
+                return torch.tanh(self.conv(x)).flatten(1)
+    '''))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])))
+    import robot_encoder
+
+    torch.manual_seed(3)
+    torch.save(robot_encoder.Encoder().state_dict(), tmp_path / "enc.pt")
+    task = f"robot_room:RobotRoom,max_steps=50,encoder=robot_encoder:Encoder,encoder_weights={tmp_path / 'enc.pt'}"
+    spec = CAMERA_SPEC.replace("    - {topic: /mocap, type: geometry_msgs/msg/PoseStamped, fields: [pose.position.x, "
+                               "pose.position.y], privileged: true}\n", "")
+    (tmp_path / "camera.yaml").write_text(spec)
+    frame = _picture(64, 64)
+    pixels = image_reader("sensor_msgs/msg/CompressedImage", (32, 32))(_compressed(frame))
+    expected = task_encoder(task, (32, 32, 3))(pixels)
+    assert expected.shape == (2 * 4 * 4,)
+    capture = Capture()
+    bridge = start("observation_bridge", spec=tmp_path / "camera.yaml", task=task, episodes=1, wait_for_subscribers=1)
+    try:
+        camera = capture.node.create_publisher(CompressedImage, "/camera/compressed", qos_profile_sensor_data)
+        assert capture.spin_until(lambda: camera.get_subscription_count() >= 1, 30)
+        message = _compressed(frame)
+        deadline = time.monotonic() + 60
+        while bridge.poll() is None and time.monotonic() < deadline:
+            camera.publish(message)
+            capture.spin_for(0.02)
+        code, out = finish(bridge)
+    finally:
+        if bridge.poll() is None:
+            bridge.send_signal(signal.SIGINT)
+        capture.close()
+    obs = capture.msgs["observation"]
+    assert code == 0 and [m.step for m in obs] == list(range(6)), out
+    for m in obs:
+        np.testing.assert_allclose(np.asarray(m.state), expected, atol=1e-6)
+    (tmp_path / "small.yaml").write_text(spec.replace("image: 32x32", "image: 16x16"))
+    code, out = finish(start("observation_bridge", spec=tmp_path / "small.yaml", task=task))
+    assert code == 2 and "the spec's cameras make 16x16x3; task" in out and "encoder reads 32x32x3" in out, out
+    assert "Traceback" not in out

@@ -6,7 +6,9 @@ geometry_msgs/PoseStamped, sensor_msgs/JointState, sensor_msgs/LaserScan, std_ms
 or any message whose fields are numbers; cameras, sensor_msgs/Image and CompressedImage, resized),
 keeps the latest value of each, and `rate` times a second publishes one EnvObservation on
 `nmrm/observation`, for `task`: the cameras' pixels then the other fields in order as its state,
-the fields of inputs marked privileged as its privileged state.
+the fields of inputs marked privileged as its privileged state. A task spec with a frozen encoder
+(`encoder=<module>:<attribute>[,encoder_weights=<file>]`, `nmrm_ros.tasks.frozen_encoder`) gets the
+encoder's features of the cameras' frame in place of its pixels, as the task's own env would give.
 A tick with an input older than `stale_after` s (or never seen) publishes nothing and is counted
 (a warning every 5 s says which input); a message whose fields cannot be read (a missing joint, a
 NaN) is dropped and counted the same way. Time is the node's clock, so `use_sim_time` is honoured.
@@ -72,8 +74,20 @@ class ObservationBridgeNode(NmrmNode):
         self.info = require_task(p["task"])
         self.task = p["task"]
         self.expected = self.info.state_size
-        if tuple(self.info.image_shape) != tuple(self.spec.image_shape):
-            have = "x".join(map(str, self.spec.image_shape)) or "no camera"
+        have = "x".join(map(str, self.spec.image_shape)) or "no camera"
+        self.encoder = None  # the task spec's frozen encoder: the cameras' frame -> its features
+        if self.info.encoder_image_shape:
+            if tuple(self.info.encoder_image_shape) != tuple(self.spec.image_shape):
+                want = "x".join(map(str, self.info.encoder_image_shape))
+                raise NodeError(f"the spec's cameras make {have}; task {self.task}'s encoder reads {want} "
+                                f"(H x W x C: the cameras' image size and channels)")
+            from ..tasks.frozen_encoder import EncoderError, task_encoder
+
+            try:
+                self.encoder = task_encoder(self.task, tuple(self.spec.image_shape))
+            except EncoderError as exc:
+                raise NodeError(str(exc)) from None
+        elif tuple(self.info.image_shape) != tuple(self.spec.image_shape):
             want = "x".join(map(str, self.info.image_shape)) or "no image"
             raise NodeError(f"the spec's cameras make {have}; task {self.task} has {want} in its state "
                             f"(image_shape H x W x C: the cameras' image size and channels)")
@@ -83,6 +97,7 @@ class ObservationBridgeNode(NmrmNode):
         self.latest: list = [None] * len(self.spec.inputs)  # (values, receive time in ns)
         self.dropped = [0] * len(self.spec.inputs)
         self.stale_ticks = 0
+        self.encoder_failures = 0
         self.warned_at = 0.0
         self.episode = int(p["first_episode"]) - 1
         self.done_episodes = 0
@@ -114,6 +129,7 @@ class ObservationBridgeNode(NmrmNode):
         self.waiting = self.auto_start  # the first episode starts once the subscribers are there
 
         self.diagnose(lambda: {"episode": self.episode, "stale_ticks": self.stale_ticks,
+                               "encoder_failures": self.encoder_failures,
             **{f"dropped {i.topic}": n for i, n in zip(self.spec.inputs, self.dropped)}},
             warn=lambda: f"{self.stale_ticks} stale tick(s)" if self.stale_ticks else None)
 
@@ -152,7 +168,17 @@ class ObservationBridgeNode(NmrmNode):
             else:
                 state += got[0]
         if images:
-            state = np.concatenate(images, axis=2).reshape(-1).tolist() + state
+            image = np.concatenate(images, axis=2)
+            if self.encoder is not None:
+                from ..tasks.frozen_encoder import EncoderError
+
+                try:
+                    image = self.encoder(image)
+                except EncoderError as exc:  # NaN features of this frame: the tick is skipped
+                    self.encoder_failures += 1
+                    self._warn(f"{exc}; {self.encoder_failures} tick(s) skipped so far")
+                    return None
+            state = image.reshape(-1).tolist() + state
         if len(state) != self.expected:
             if not self.wrong_size_warned:
                 self.get_logger().error(f"the spec's inputs make {len(state)} state values, task {self.task} has "

@@ -47,7 +47,8 @@ def _spec_info(task: str) -> TaskInfo:
         return TaskInfo(task, int(env.observation_space.shape[0]), discrete,
                         int(act.n) if discrete else int(act.shape[0]), env.episode_length, renders=True,
                         instruction=instruction, legend=legend, image_shape=env.image_shape,
-                        privileged_size=privileged)
+                        privileged_size=privileged,
+                        encoder_image_shape=env.layout.image_shape if env.encoder is not None else ())
     finally:
         env.close()
 

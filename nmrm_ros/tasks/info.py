@@ -76,7 +76,9 @@ class TaskInfo:
     state; privileged_size: the size of the privileged state (what the oracle and the plots see,
     a model or an agent never: e.g. the true position behind a camera image), 0 for none;
     pixels_of: the vector-state task whose pixel version this is (its datasets rendered, its
-    oracle on the privileged state), "" otherwise."""
+    oracle on the privileged state), "" otherwise; encoder_image_shape: (H, W, C) of the image a
+    task spec's frozen encoder reads (`encoder=`; its features lead the state, and image_shape is
+    ()), () without one."""
 
     name: str
     state_size: int
@@ -100,6 +102,7 @@ class TaskInfo:
     image_shape: tuple = ()
     privileged_size: int = 0
     pixels_of: str = ""
+    encoder_image_shape: tuple = ()
 
     @property
     def image_values(self) -> int:
