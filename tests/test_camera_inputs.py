@@ -182,7 +182,7 @@ def test_a_camera_robot_with_the_tasks_frozen_encoder_makes_its_features(ros_dom
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import CompressedImage
 
-    from nmrm_ros.tasks.frozen_encoder import task_encoder
+    from nmrm_ros.tasks.gym_task import task_encoder
     from nmrm_ros.testing.graph import Capture, finish, start
 
     (tmp_path / "robot_room.py").write_text(textwrap.dedent('''

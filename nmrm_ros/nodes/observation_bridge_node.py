@@ -81,7 +81,8 @@ class ObservationBridgeNode(NmrmNode):
                 want = "x".join(map(str, self.info.encoder_image_shape))
                 raise NodeError(f"the spec's cameras make {have}; task {self.task}'s encoder reads {want} "
                                 f"(H x W x C: the cameras' image size and channels)")
-            from ..tasks.frozen_encoder import EncoderError, task_encoder
+            from ..tasks.frozen_encoder import EncoderError
+            from ..tasks.gym_task import task_encoder
 
             try:
                 self.encoder = task_encoder(self.task, tuple(self.spec.image_shape))

@@ -101,20 +101,6 @@ class FrozenEncoder:
         return features
 
 
-def task_encoder(task: str, image_shape: tuple) -> FrozenEncoder | None:
-    """The frozen encoder a task spec names (`encoder=`, `encoder_weights=`), for images of
-    `image_shape` (H, W, C); None for a task without one. EncoderError (one line) if it does not
-    load or run. What a robot's observation bridge applies to its cameras' stacked frames."""
-    from .gym_task import is_task_spec, parse_task_spec
-
-    if not is_task_spec(task):
-        return None
-    spec = parse_task_spec(task)
-    if spec.encoder is None:
-        return None
-    return FrozenEncoder(spec.encoder, spec.encoder_weights, image_shape, spec.text)
-
-
 def _line(exc: BaseException, limit: int = 300) -> str:
     """An exception's message on one line (a state dict's missing and unexpected keys included),
     at most `limit` characters."""

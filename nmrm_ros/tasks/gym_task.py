@@ -378,6 +378,20 @@ def make_gym_task_env(task: str, render: bool = False) -> GymTaskEnv:
     return GymTaskEnv(_construct(spec, render), spec)
 
 
+def task_encoder(task: str, image_shape: tuple):
+    """The `frozen_encoder.FrozenEncoder` a task spec names (`encoder=`, `encoder_weights=`), for images of
+    `image_shape` (H, W, C); None for a task without one. EncoderError (one line) if it does not
+    load or run. What a robot's observation bridge applies to its cameras' stacked frames."""
+    from .frozen_encoder import FrozenEncoder
+
+    if not is_task_spec(task):
+        return None
+    spec = parse_task_spec(task)
+    if spec.encoder is None:
+        return None
+    return FrozenEncoder(spec.encoder, spec.encoder_weights, image_shape, spec.text)
+
+
 def encoder_weights_changed(task: str | None, recorded: str | None) -> str | None:
     """How the frozen encoder's weights file of `task` differs from the one whose SHA-256
     `recorded` was taken (a dataset's or a checkpoint's: their states are its features), in words;
