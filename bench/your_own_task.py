@@ -166,7 +166,8 @@ def run_agent(job: tuple) -> dict:
            "greedy_oracle_return": float(result.returns.mean()),
            "random_oracle_return": float(result.random_returns.mean()), "episodes": len(run.curve.records),
            "seconds": seconds, "late_dip": late_dip(out / "curve.csv"), "policy": str(out / "policy.zip"), "rl_config": json.loads((out / "agent.json").read_text())["config"],
-           "collapsed": bool(run.collapse and run.collapse.collapsed), "collapse": run.collapse.summary() if run.collapse else ""}
+           "collapsed": bool(run.collapse and run.collapse.collapsed), "collapse": run.collapse.summary() if run.collapse else "",
+           "model_check": run.model_check.to_dict() if run.model_check else None}
     setting.agent_results.mkdir(parents=True, exist_ok=True)
     (setting.agent_results / f"{agent_name(reward, seed, repeat)}.json").write_text(json.dumps(res, indent=1))
     return res

@@ -13,6 +13,7 @@ import torch
 
 from nmrm_ros.rl import DoubleDQN, EpisodeCurveCallback, LearningCurve
 from nmrm_ros.rl.acceptance import HackingCheck, MemoryCheck, next_step
+from nmrm_ros.rl.model_check import AgentEpisodesCheck, model_check_of_run
 from nmrm_ros.rl.collapse import collapse_report, late_dip
 from nmrm_ros.rl.kept_policy import PolicyKeeper, episode_scores
 from nmrm_ros.rl.training import EpisodeRecord
@@ -256,6 +257,37 @@ def test_check_failure_names_the_next_command():
     text = next_step([MemoryCheck(100, 0.5, 0.4)], "runs/key", "key")
     assert "larger hidden state" in text and "nmrm loop --task key --rounds" in text
     assert math.isfinite(hacked.gap)
+
+
+def test_rl_train_ends_by_checking_the_model_where_the_agent_went(small_key_checkpoint, tmp_path):
+    """`nmrm rl train --reward model` compares what the model paid the agent's last episodes with
+    the oracle's returns of them (agent.json records it); a model that overpays them fails, with
+    the loop as the next command; a model of comparisons (other units) is not compared."""
+    import json
+    import shutil
+    import subprocess
+
+    from nmrm_ros.testing.graph import executable
+
+    res = subprocess.run([executable("nmrm"), "rl", "train", "--task", "key", "--reward", "model", "--checkpoint",
+                          str(small_key_checkpoint), "--episodes", "3", "--out", str(tmp_path / "a")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "the model on the agent's last 3 episodes: paid" in res.stdout, res.stdout
+    check = json.loads((tmp_path / "a" / "agent.json").read_text())["model_check"]
+    assert check["episodes"] == 3 and isinstance(check["passed"], bool)
+    judged = np.full(60, 37.4)
+    hacked = model_check_of_run(small_key_checkpoint, judged + 41.6, judged)
+    assert isinstance(hacked, AgentEpisodesCheck) and hacked.episodes == 50 and not hacked.passed
+    assert hacked.summary().endswith("FAIL: the agent went where the model is wrong")
+    assert "nmrm loop --task key" in next_step([hacked], "runs/key", "key")
+    assert model_check_of_run(small_key_checkpoint, judged, judged).passed
+    assert model_check_of_run(small_key_checkpoint, judged, np.full(60, np.nan)) is None  # nobody judged
+    record = json.loads(small_key_checkpoint.with_suffix(".json").read_text())
+    record["train_config"]["feedback"] = "preferences"
+    shutil.copy(small_key_checkpoint.with_suffix(".pt"), tmp_path / "prefs.pt")
+    (tmp_path / "prefs.json").write_text(json.dumps(record))
+    assert model_check_of_run(tmp_path / "prefs", judged + 41.6, judged) is None
 
 
 def test_a_policy_is_kept_with_the_model_it_acted_on():

@@ -17,7 +17,7 @@ from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.rl import EpisodeSeeds, RewardModelWrapper, load_rl_config, make_algorithm, make_reward_env
 from nmrm_ros.datasets import TrajectoryDataset
 from nmrm_ros.rl.replay_relabel import adopt_model, catch_up, relabel_replay_buffer
-from nmrm_ros.rl.reward_model_loop import last_model_check, round_pairs
+from nmrm_ros.rl.reward_model_loop import last_model_check, last_model_verdict, round_pairs
 from nmrm_ros.tasks import make_env, task_info
 
 D = task_info("key").state_size  # the raw state's part of an observation
@@ -150,10 +150,11 @@ def test_the_loop_says_when_its_last_model_still_overpays_the_agent():
     judged = np.full(100, 138.7)
     hacked = last_model_check(judged + 33.9, judged, 3, 95.8, first)  # RMSE 9.8: tolerance 29.4
     assert not hacked.passed and hacked.episodes == 50
-    assert "gap +33.90, tolerance 29.36): FAIL: the model is still wrong where the agent goes" in hacked.summary(4)
-    assert "(--rounds 5)" in hacked.summary(4)
+    assert "gap +33.90, tolerance 29.36): FAIL: the model is still wrong where the agent goes" in \
+        last_model_verdict(hacked, 4)
+    assert "(--rounds 5)" in last_model_verdict(hacked, 4)
     fine = last_model_check(judged + 5.9, judged, 3, 39.8, first)
-    assert fine.passed and fine.summary().endswith("PASS")
+    assert fine.passed and last_model_verdict(fine).endswith("PASS")
     assert last_model_check(judged - 33.9, judged, 3, 95.8, first).passed is False  # underpaying is wrong too
     small = last_model_check(np.full(10, 1.04), np.ones(10), 0, 0.0, np.zeros(5))
     assert small.tolerance == pytest.approx(0.05) and small.passed  # 5% of the oracle's scale

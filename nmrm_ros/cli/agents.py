@@ -56,6 +56,12 @@ def rl_train(
                f"{run.curve.final_oracle_return():.3f}")
     typer.echo(f"wrote {out}/policy.zip, curve.csv, curve.png")
     typer.echo(run.collapse.summary())
+    if run.model_check is not None:
+        from ..rl.acceptance import next_step
+
+        typer.echo(run.model_check.summary())
+        if not run.model_check.passed:
+            typer.echo(next_step([run.model_check], str(checkpoint), task, oracle))
 
 
 @rl_app.command("evaluate")

@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .model_check import AgentEpisodesCheck, gap_tolerance
+
 
 @dataclass
 class MemoryCheck:
@@ -92,13 +94,6 @@ class UnitsMap:
                     f"they are")
         return (f"the model learnt from comparisons, so its returns are read in the oracle's units: "
                 f"R' = {self.gain:.3g} R {self.offset:+.3g}, fitted on {self.episodes} screened episodes")
-
-
-def gap_tolerance(rmse: float, scale: float) -> float:
-    """How far a model may pay an agent's episodes from the oracle's returns before the agent is
-    said to have learnt the model's mistake: max(3 x the model's return RMSE where no agent chose
-    the episodes, 5% of the oracle's return scale). `nmrm check` and the loop's last-model check."""
-    return max(3.0 * rmse, 0.05 * scale)
 
 
 @dataclass
@@ -285,7 +280,7 @@ def next_step(results: list, checkpoint: str, task: str, oracle: str = "") -> st
     people = (f"nmrm launch launch_scripts/label.launch.yaml task:={q(task)} checkpoint:={q(checkpoint)} "
               f"policy:=learn person:=NAME")
     lines = []
-    if any(isinstance(r, HackingCheck) for r in failed):
+    if any(isinstance(r, (HackingCheck, AgentEpisodesCheck)) for r in failed):
         lines.append("next: the agent found where the model is wrong; label its own episodes so the model "
                      f"learns there (the reward-model <-> agent loop): {loop}")
         lines.append(f"      or label them yourself on the page while the agent learns: {people}")

@@ -40,9 +40,9 @@ loop.json (per round: labels, training summary, the agent's episodes and their m
 the final oracle return and a greedy evaluation of the kept policy, `agent/policy.zip`, with the
 model it acted on, `kept_checkpoint`; the agent's collapse report; the last model's check).
 
-The loop ends by checking its last model where the agent went (`LastModelCheck`): what it paid the
+The loop ends by checking its last model where the agent went (`last_model_check`): what it paid the
 agent's last (up to 50) training episodes against the oracle's returns of the same episodes, with
-`nmrm check`'s tolerance (`acceptance.gap_tolerance`). The kept policy is chosen by min(learnt,
+`nmrm check`'s tolerance (`model_check.gap_tolerance`). The kept policy is chosen by min(learnt,
 judged) and survives a model that overpays it; the model does not, and a FAIL says so.
 """
 
@@ -90,7 +90,7 @@ class LoopResult:
     collapse: str = ""         # the agent's collapse report (`nmrm_ros.rl.collapse`)
     collapsed: bool = False    # that report found a late dip or Q beyond its bound
     kept_checkpoint: str = ""  # the model the kept policy (agent/policy.zip) acted on
-    last_model_check: str = ""   # LastModelCheck.summary() ("" with comparisons: other units)
+    last_model_check: str = ""   # last_model_verdict() ("" with comparisons: other units)
     last_model_agrees: bool | None = None  # that check passed (None: not made)
 
     def summary(self) -> str:
@@ -109,57 +109,6 @@ class LoopResult:
         if self.last_model_check:
             lines.append(self.last_model_check)
         return "\n".join(lines)
-
-
-@dataclass
-class LastModelCheck:
-    """The last model against the oracle on the agent's own last episodes (returns feedback: the
-    model was trained in the oracle's units). learnt, judged: mean returns of those episodes;
-    rmse: the model's validation return RMSE; scale: the oracle's return scale (max of the mean
-    |judged|, round 0's mean |return| and its standard deviation), as `nmrm check`'s."""
-
-    model: int
-    episodes: int
-    learnt: float
-    judged: float
-    rmse: float
-    scale: float
-
-    @property
-    def gap(self) -> float:
-        return self.learnt - self.judged
-
-    @property
-    def tolerance(self) -> float:
-        from .acceptance import gap_tolerance
-
-        return gap_tolerance(self.rmse, self.scale)
-
-    @property
-    def passed(self) -> bool:
-        return bool(abs(self.gap) <= self.tolerance)
-
-    def summary(self, rounds: int = 0) -> str:
-        line = (f"last model (model {self.model}) on the agent's last {self.episodes} episodes: paid "
-                f"{self.learnt:.2f} by the model, {self.judged:.2f} by the oracle (gap {self.gap:+.2f}, "
-                f"tolerance {self.tolerance:.2f}): ")
-        if self.passed:
-            return line + "PASS"
-        more = f" (--rounds {rounds + 1})" if rounds else ""
-        return line + ("FAIL: the model is still wrong where the agent goes. The kept policy was chosen by "
-                       "the oracle's returns too, but do not train new agents on this model: more rounds "
-                       f"label where it is wrong{more}")
-
-
-def last_model_check(learnt: np.ndarray, judged: np.ndarray, model: int, val_return_mse: float,
-                     first_returns: np.ndarray) -> LastModelCheck:
-    """`LastModelCheck` of the agent's episodes served by the last model (learnt, judged: their
-    returns, (n,), in order; the last 50 are used) and round 0's labelled returns (the scale)."""
-    learnt, judged = np.asarray(learnt, float)[-50:], np.asarray(judged, float)[-50:]
-    first = np.asarray(first_returns, float)
-    scale = max(float(np.abs(judged).mean()), float(np.abs(first).mean()), float(first.std()), 1e-9)
-    return LastModelCheck(model, len(learnt), float(learnt.mean()), float(judged.mean()),
-                          float(np.sqrt(max(val_return_mse, 0.0))), scale)
 
 
 def agent_episodes(agent, wrapper_env, episodes: int, seed: int) -> list:
@@ -251,6 +200,30 @@ def round_pairs(n_old: int, n_new: int, count: int, rng: np.random.Generator) ->
     b = b + (b >= a)  # anyone but a itself
     swap = rng.random(count) < 0.5
     return np.column_stack([np.where(swap, b, a), np.where(swap, a, b)]).astype(np.int64)
+
+
+def last_model_check(learnt: np.ndarray, judged: np.ndarray, model: int, val_return_mse: float,
+                     first_returns: np.ndarray):
+    """The `model_check.AgentEpisodesCheck` of the loop's last model (model `model`, validation
+    return MSE `val_return_mse`) on the agent's episodes it served (learnt, judged: their returns,
+    (n,), in order; the last 50 are used); the oracle's scale is at least round 0's labelled
+    returns' (first_returns) mean |return| and standard deviation."""
+    from .model_check import agent_episodes_check
+
+    first = np.asarray(first_returns, float)
+    return agent_episodes_check(learnt, judged, f"last model (model {model})",
+                                float(np.sqrt(max(val_return_mse, 0.0))),
+                                max(float(np.abs(first).mean()), float(first.std())))
+
+
+def last_model_verdict(check, rounds: int = 0) -> str:
+    """The loop's line for its last model's check: on a FAIL, what it means and what to do."""
+    if check.passed:
+        return check.summary()
+    more = f" (--rounds {rounds + 1})" if rounds else ""
+    return (check.summary("the model is still wrong where the agent goes")
+            + ". The kept policy was chosen by the oracle's returns too, but do not train new agents on this "
+              f"model: more rounds label where it is wrong{more}")
 
 
 def check_loop_arguments(rounds: int, labels_per_round: int, episodes: int | None,
@@ -375,7 +348,7 @@ def run_loop(task: str, rounds: int, labels_per_round: int, episodes: int | None
     if feedback != "preferences" and len(learnt) and np.isfinite(last.training.get("val_return_mse", np.nan)):
         check = last_model_check(learnt, returns[last.first_episode:last.last_episode], last.index,
                                  float(last.training["val_return_mse"]), labels[0].returns)
-        result.last_model_check, result.last_model_agrees = check.summary(rounds), check.passed
+        result.last_model_check, result.last_model_agrees = last_model_verdict(check, rounds), check.passed
     ev = evaluate_agent(run.model, task, kept, reward="model", oracle=oracle)
     result.greedy_oracle_return = float(np.mean(ev.returns))
     result.seconds = time.perf_counter() - t0

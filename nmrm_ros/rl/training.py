@@ -204,6 +204,7 @@ class AgentRun:
     out: Path | None
     collapse: CollapseReport | None = None
     kept_checkpoint: str | None = None  # the reward model the kept policy acted on (None: `checkpoint`)
+    model_check: object | None = None  # model_check.AgentEpisodesCheck: the model where the agent went
 
 
 def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
@@ -251,6 +252,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
     # as its base, so give each env its own base (VecEnv.seed can only add the env index).
     vec._seeds = seeds  # noqa: SLF001 - no public setter
+    swaps_models = callback is not None  # a caller's callback (the loop's rounds) may swap the model
     if callback is None:
         callback = EpisodeCurveCallback(on_episode=on_episode)
     callback.max_episodes = episodes
@@ -263,6 +265,13 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     seconds = time.perf_counter() - t0
     keeper = callback.keeper
     kept, report = end_of_run(callback.curve, model, keeper)
+    model_check = None
+    if reward == "model" and not swaps_models:  # a loop checks each of its models itself
+        from .model_check import model_check_of_run
+
+        records = callback.curve.records
+        model_check = model_check_of_run(checkpoint, [r.learnt_return for r in records],
+                                         [r.oracle_return for r in records])
     # a loop swaps models: the kept policy goes with the one it acted on (`PolicyKeeper.retag`)
     policy_checkpoint = (kept.tag if kept is not None else keeper.tag) if keeper is not None else None
     policy_checkpoint = policy_checkpoint or (str(checkpoint) if checkpoint is not None else None)
@@ -275,10 +284,12 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
             "checkpoint_sha256": recorded_weights_sha256(policy_checkpoint) if reward == "model" else None,
             "served_state": served if reward == "model" else None, "oracle": oracle, "observe": observe, "seed": seed, "env_seed": env_seed, "n_envs": n_envs, "episodes": episodes,
             "seconds": seconds, "final_oracle_return": callback.curve.final_oracle_return(),
-            "config": cfg}, keeper=keeper, collapse=report)
+            "config": cfg, **({"model_check": model_check.to_dict()} if model_check else {})},
+            keeper=keeper, collapse=report)
     if kept is not None:
         model.policy.load_state_dict(kept.weights)
-    return AgentRun(model, callback.curve, seconds, out_dir, report, policy_checkpoint if reward == "model" else None)
+    return AgentRun(model, callback.curve, seconds, out_dir, report, policy_checkpoint if reward == "model" else None,
+                    model_check)
 
 
 def save_agent(model, curve: LearningCurve, out: Path, meta: dict, keeper: PolicyKeeper | None = None,
