@@ -84,6 +84,18 @@ def test_compressed_frames_are_decoded_resized_and_bad_data_is_an_error():
         compressed_pixels(CompressedImage(format="jpeg", data=b"not an image"))
 
 
+def _publish_until_done(bridge, capture, publish, timeout: float = 60.0) -> tuple:
+    """Call `publish()` every 20 ms (spinning the capture) until the bridge process exits, at most
+    `timeout` s; its (exit code, output)."""
+    from nmrm_ros.testing.graph import finish
+
+    deadline = time.monotonic() + timeout
+    while bridge.poll() is None and time.monotonic() < deadline:
+        publish()
+        capture.spin_for(0.02)
+    return finish(bridge)
+
+
 CAMERA_SPEC = """
 observation:
   rate: 20.0
@@ -148,12 +160,7 @@ def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_stat
         pose = PoseStamped()
         pose.pose.position.x, pose.pose.position.y = 0.25, 0.75
         message = _compressed(frame)
-        deadline = time.monotonic() + 60
-        while bridge.poll() is None and time.monotonic() < deadline:
-            camera.publish(message)
-            mocap.publish(pose)
-            capture.spin_for(0.02)
-        code, out = finish(bridge)
+        code, out = _publish_until_done(bridge, capture, lambda: (camera.publish(message), mocap.publish(pose)))
     finally:
         if bridge.poll() is None:
             bridge.send_signal(signal.SIGINT)
@@ -229,11 +236,7 @@ def test_a_camera_robot_with_the_tasks_frozen_encoder_makes_its_features(ros_dom
         camera = capture.node.create_publisher(CompressedImage, "/camera/compressed", qos_profile_sensor_data)
         assert capture.spin_until(lambda: camera.get_subscription_count() >= 1, 30)
         message = _compressed(frame)
-        deadline = time.monotonic() + 60
-        while bridge.poll() is None and time.monotonic() < deadline:
-            camera.publish(message)
-            capture.spin_for(0.02)
-        code, out = finish(bridge)
+        code, out = _publish_until_done(bridge, capture, lambda: camera.publish(message))
     finally:
         if bridge.poll() is None:
             bridge.send_signal(signal.SIGINT)
