@@ -288,6 +288,14 @@ def test_rl_train_ends_by_checking_the_model_where_the_agent_went(small_key_chec
     shutil.copy(small_key_checkpoint.with_suffix(".pt"), tmp_path / "prefs.pt")
     (tmp_path / "prefs.json").write_text(json.dumps(record))
     assert model_check_of_run(tmp_path / "prefs", judged + 41.6, judged) is None
+    record["train_config"]["feedback"] = "returns"
+    record["calibration"] = {"gain": 2.0, "offset": 0.0}  # its recorded RMSE predates the calibration
+    (tmp_path / "prefs.json").write_text(json.dumps(record))
+    assert model_check_of_run(tmp_path / "prefs", judged + 41.6, judged) is None
+    del record["calibration"]
+    record["metrics"]["val"]["return_mse"] = float("nan")  # no return labels validated it
+    (tmp_path / "prefs.json").write_text(json.dumps(record))
+    assert model_check_of_run(tmp_path / "prefs", judged, judged) is None
 
 
 def test_a_policy_is_kept_with_the_model_it_acted_on():

@@ -132,7 +132,9 @@ class ObservationBridgeNode(NmrmNode):
         self.diagnose(lambda: {"episode": self.episode, "stale_ticks": self.stale_ticks,
                                "encoder_failures": self.encoder_failures,
             **{f"dropped {i.topic}": n for i, n in zip(self.spec.inputs, self.dropped)}},
-            warn=lambda: f"{self.stale_ticks} stale tick(s)" if self.stale_ticks else None)
+            warn=lambda: "; ".join(w for w in (f"{self.stale_ticks} stale tick(s)" if self.stale_ticks else "",
+                                               f"{self.encoder_failures} tick(s) the encoder failed on"
+                                               if self.encoder_failures else "") if w) or None)
 
     # -- inputs ------------------------------------------------------------------------------------
     def on_input(self, i: int, msg) -> None:
@@ -175,7 +177,7 @@ class ObservationBridgeNode(NmrmNode):
 
                 try:
                     image = self.encoder(image)
-                except EncoderError as exc:  # NaN features of this frame: the tick is skipped
+                except EncoderError as exc:  # it failed on this frame, or gave NaN: the tick is skipped
                     self.encoder_failures += 1
                     self._warn(f"{exc}; {self.encoder_failures} tick(s) skipped so far")
                     return None

@@ -72,9 +72,10 @@ def agent_episodes_check(learnt, judged, model: str, rmse: float, scale_floor: f
 
 def model_check_of_run(checkpoint: str | Path, learnt, judged) -> AgentEpisodesCheck | None:
     """The `AgentEpisodesCheck` of an agent that learnt on `checkpoint` alone (learnt, judged: its
-    episodes' returns), with the checkpoint's validation return RMSE and standard deviation; None
-    for a model that does not pay in the oracle's units (comparisons, uncalibrated), one without
-    validation metrics, or episodes without judgements."""
+    episodes' returns), with the checkpoint's validation return RMSE; the scale is the mean |judged|
+    (the checkpoint records no spread of its labels). None for a model of comparisons (other units;
+    calibrated or not: its recorded RMSE predates the calibration), one without a finite validation
+    return MSE, or episodes without judgements."""
     import json
 
     from ..mil.checkpoint import CheckpointMeta, checkpoint_paths
@@ -83,9 +84,10 @@ def model_check_of_run(checkpoint: str | Path, learnt, judged) -> AgentEpisodesC
         meta = CheckpointMeta.from_dict(json.loads(checkpoint_paths(checkpoint)[1].read_text()))
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    val = meta.metrics.get("val") or {}
+    mse = (meta.metrics.get("val") or {}).get("return_mse")
     judged = np.asarray(judged, float)
-    if not meta.return_units or "return_mse" not in val or not len(judged) or not np.all(np.isfinite(judged[-50:])):
+    comparisons = meta.calibration is not None or meta.train_config.get("feedback", "returns") == "preferences"
+    if (comparisons or not isinstance(mse, (int, float)) or not np.isfinite(mse) or not len(judged)
+            or not np.all(np.isfinite(judged[-50:]))):
         return None
-    return agent_episodes_check(learnt, judged, "the model", float(np.sqrt(max(val["return_mse"], 0.0))),
-                                float(val.get("return_std") or 0.0))
+    return agent_episodes_check(learnt, judged, "the model", float(np.sqrt(max(mse, 0.0))), 0.0)

@@ -252,7 +252,7 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     # SB3 seeded env i with seed + i for its first reset; EpisodeSeeds takes the seed of a reset
     # as its base, so give each env its own base (VecEnv.seed can only add the env index).
     vec._seeds = seeds  # noqa: SLF001 - no public setter
-    swaps_models = callback is not None  # a caller's callback (the loop's rounds) may swap the model
+    custom_callback = callback is not None  # a caller's (the loop's rounds) may swap the model
     if callback is None:
         callback = EpisodeCurveCallback(on_episode=on_episode)
     callback.max_episodes = episodes
@@ -266,7 +266,10 @@ def train_agent(task: str, reward: str, checkpoint: str | Path | None = None,
     keeper = callback.keeper
     kept, report = end_of_run(callback.curve, model, keeper)
     model_check = None
-    if reward == "model" and not swaps_models:  # a loop checks each of its models itself
+    # a model swapped during the run (the loop, which checks its last model itself): the keeper
+    # was retagged; without a keeper, any caller's callback may have swapped
+    swapped = keeper.tag is not None if keeper is not None else custom_callback
+    if reward == "model" and not swapped:
         from .model_check import model_check_of_run
 
         records = callback.curve.records
