@@ -324,7 +324,8 @@ def summary() -> str:
     loop's labels and seconds."""
     names = [""] + sorted(p.parent.name for p in RESULTS.glob("*/setting.json"))
     lines = ["# bench/your_own_task.py --summary: greedy oracle return (50 episodes) as a fraction of the "
-             "oracle-with-hidden agents' mean; median / worst [collapsed of known]; targets 90% / 80%, 0 collapses",
+             "oracle-with-hidden agents' mean; median / worst [collapsed of known] <model check FAIL of known: the "
+             "model against the oracle on the agent's last 50 episodes>; targets 90% / 80%, 0 collapses",
              f"{'name':18s} {'oracle agents':>15s} {'data seeds':>10s} {'agents on offline models':>26s} "
              f"{'the loop (labels, s/run)':>40s}"]
     for name in names:
@@ -346,7 +347,9 @@ def summary() -> str:
             v = np.array([r["greedy_oracle_return"] for r in runs]) / ref
             known_collapse = [c for c in map(collapsed, runs) if c is not None]
             c = f"{sum(known_collapse)}/{len(known_collapse)}" if known_collapse else "?"
-            return f"n {len(v)}: {np.median(v):4.0%} / {v.min():4.0%} [{c}]"
+            checked = [f for f in map(model_failed, runs) if f is not None]
+            m = f"{sum(checked)}/{len(checked)}" if checked else "?"
+            return f"n {len(v)}: {np.median(v):4.0%} / {v.min():4.0%} [{c}] <{m}>"
 
         loops = [json.loads(p.read_text()) for p in sorted(where.glob("loop_*_s*.json"))]
         budget = "".join(sorted({p.name.split("_")[1] for p in where.glob("loop_*_s*.json")}))
@@ -392,6 +395,49 @@ def replaced_model(setting: Setting, runs: list[dict]) -> str:
     today = recorded_weights_sha256(checkpoint)
     old = sum(r.get("checkpoint_sha256") != today for r in runs)
     return f"; {old} of {len(runs)} on a replaced model (retrained since)" if old else ""
+
+
+def model_failed(run: dict) -> bool | None:
+    """Whether the model failed its check where the agent went (`nmrm_ros.rl.model_check`): an
+    agent's model (its recorded `model_check`, or, for runs before 2026-12-07, replayed from its
+    curve.csv and checkpoint if still on this machine), a loop's last model (`last_model_agrees`,
+    or replayed from its loop.json, labels.npz and curve.csv); None: unknown or not made."""
+    from nmrm_ros.rl.model_check import model_check_of_run
+    from nmrm_ros.rl.reward_model_loop import last_model_check
+
+    run_dir = Path(run["policy"]).parent
+    if run.get("reward") == "loop":
+        if run.get("last_model_agrees") is not None:
+            return not run["last_model_agrees"]
+        loop_json, labels = run_dir.parent / "loop.json", run_dir.parent / "labels.npz"
+        if not (loop_json.is_file() and labels.is_file() and (run_dir / "curve.csv").is_file()):
+            return None
+        from nmrm_ros.datasets import TrajectoryDataset
+
+        loop = json.loads(loop_json.read_text())
+        last = loop["rounds"][-1]
+        curve = read_curve(run_dir / "curve.csv")[last["first_episode"]:last["last_episode"]]
+        first = TrajectoryDataset.load(labels).returns[:loop["labels_per_round"]]
+        check = last_model_check([r[1] for r in curve], [r[0] for r in curve], last["index"],
+                                 float(last["training"]["val_return_mse"]), first)
+        return not check.passed
+    if "model_check" in run:
+        return None if run["model_check"] is None else not run["model_check"]["passed"]
+    agent = run_dir / "agent.json"
+    if run.get("reward") != "model" or not agent.is_file() or not (run_dir / "curve.csv").is_file():
+        return None
+    curve = read_curve(run_dir / "curve.csv")
+    check = model_check_of_run(json.loads(agent.read_text())["checkpoint"], [r[1] for r in curve],
+                               [r[0] for r in curve])
+    return None if check is None else not check.passed
+
+
+def read_curve(path: Path) -> list:
+    """curve.csv's rows as (oracle return, learnt return)."""
+    import csv
+
+    with open(path) as f:
+        return [(float(r["oracle_return"]), float(r["learnt_return"])) for r in csv.DictReader(f)]
 
 
 def collapsed(run: dict) -> bool | None:
