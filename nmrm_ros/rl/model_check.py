@@ -86,7 +86,7 @@ def model_check_of_run(checkpoint: str | Path, learnt, judged) -> AgentEpisodesC
         return None
     mse = (meta.metrics.get("val") or {}).get("return_mse")
     judged = np.asarray(judged, float)
-    comparisons = meta.calibration is not None or meta.train_config.get("feedback", "returns") == "preferences"
+    comparisons = not meta.return_units or meta.calibration is not None  # calibrated: still its own RMSE
     if (comparisons or not isinstance(mse, (int, float)) or not np.isfinite(mse) or not len(judged)
             or not np.all(np.isfinite(judged[-50:]))):
         return None
