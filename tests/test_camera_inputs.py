@@ -14,6 +14,7 @@ import pytest
 
 from nmrm_ros.ros.image_messages import compressed_pixels, image_pixels, image_reader, to_channels
 from nmrm_ros.ros.robot_spec import parse_robot_spec
+from nmrm_ros.tasks.frames import parse_frame_id
 
 
 def _picture(h: int = 48, w: int = 64) -> np.ndarray:
@@ -139,7 +140,7 @@ def test_the_robot_spec_takes_cameras_and_privileged_inputs():
 def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_state(ros_domain, tmp_path):
     """observation_bridge (a real process) with a CompressedImage camera (PNG 64x64, resized to
     32x32) and a privileged PoseStamped: key_pixels observations whose state is the resized frame
-    and whose privileged state is the pose; a spec whose cameras do not make the task's image is a
+    (sent as the observation image beside them) and whose privileged state is the pose; a spec whose cameras do not make the task's image is a
     one-line error."""
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import qos_profile_sensor_data
@@ -165,7 +166,11 @@ def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_stat
         if bridge.poll() is None:
             bridge.send_signal(signal.SIGINT)
         capture.close()
-    obs = capture.msgs["observation"]
+    # the pixels travel as a PNG on nmrm/observation_image, the observation's state is what follows them
+    assert all(len(m.state) == 0 for m in capture.msgs["observation"])
+    assert sorted(parse_frame_id(m.header.frame_id) for m in capture.msgs["observation_image"]) == \
+        [(0, t) for t in range(6)]
+    obs = capture.joined("observation", "key_pixels")
     assert code == 0 and [m.step for m in obs] == list(range(6)) and obs[-1].truncated, out
     for m in obs:
         assert m.task == "key_pixels" and len(m.state) == 32 * 32 * 3

@@ -15,6 +15,7 @@ from nmrm_ros.mil.online import batched_reference
 from nmrm_ros.mil.pipeline import fit
 from nmrm_ros.oracles import make_oracle
 from nmrm_ros.ros.topics import OBSERVATION
+from nmrm_ros.tasks.frames import parse_frame_id
 
 EPISODES = 3
 
@@ -29,7 +30,7 @@ def capture(ros_domain):
 @pytest.fixture
 def graph_capture(ros_domain):
     """A capture for `run_graph`: it subscribes to observations once it has matched the graph."""
-    cap = Capture(deferred=("observation",))
+    cap = Capture(deferred=("observation", "observation_image"))
     yield cap
     cap.close()
 
@@ -102,8 +103,9 @@ def test_graph_oracle_mode_and_labeller(graph_capture):
 
 
 def test_a_pixel_task_on_the_graph_is_labelled_from_its_privileged_state(graph_capture):
-    """key_pixels: env_sim publishes the image as the state and the position as the privileged
-    state; the labeller and the reward model (oracle mode) step the oracle with the position."""
+    """key_pixels: env_sim publishes the image (on nmrm/observation_image, the observation's state
+    empty) and the position as the privileged state; the labeller and the reward model (oracle
+    mode) step the oracle with the position."""
     capture = graph_capture
     run_graph(capture, "mode:=oracle", "task:=key_pixels")
     oracle = make_oracle("key")
@@ -111,7 +113,7 @@ def test_a_pixel_task_on_the_graph_is_labelled_from_its_privileged_state(graph_c
     assert sorted(labels) == list(range(EPISODES))
     for e in range(EPISODES):
         obs = sorted((m for m in capture.msgs["observation"] if m.episode == e), key=lambda m: m.step)
-        assert len(obs[0].state) == 3072 and len(obs[0].privileged) == 2
+        assert len(obs[0].state) == 0 and len(obs[0].privileged) == 2
         positions = np.array([m.privileged for m in obs[:100]], dtype=np.float32)
         truth = oracle.label(positions[None])
         assert labels[e].return_value == pytest.approx(truth.returns[0], abs=1e-9)
@@ -152,6 +154,16 @@ def test_a_pixel_model_serves_on_the_graph_what_it_serves_an_agents_wrapper(grap
 
     capture = graph_capture
     run_graph(capture, "mode:=model", f"checkpoint:={pixel_checkpoint}", "task:=key_pixels")
+    # the pixels travel as one PNG a step on nmrm/observation_image, not as floats in the messages
+    images = {parse_frame_id(m.header.frame_id): m for m in capture.msgs["observation_image"]}
+    assert set(images) == {(m.episode, m.step) for m in capture.msgs["observation"]}
+    for m in capture.msgs["observation"]:
+        image = images[(m.episode, m.step)]
+        assert image.format == "png" and image.header.stamp == m.header.stamp
+    assert all(len(m.state) == 0 for m in capture.msgs["observation"] + capture.msgs["reward_step"])
+    assert all(len(m.augmented_state) == len(m.hidden) for m in capture.msgs["reward_step"])
+    capture.msgs["observation"] = capture.joined("observation", "key_pixels")
+    capture.msgs["reward_step"] = capture.joined("reward_step", "key_pixels")
     eps = check_lockstep(capture)
     model, meta = load_checkpoint(pixel_checkpoint, task="key_pixels")
     wrapper = RewardModelWrapper(EpisodeSeeds(make_env("key_pixels"), 0), pixel_checkpoint, task="key_pixels")

@@ -2,10 +2,13 @@
 
 `write_dataset_bag` writes a `TrajectoryDataset` (e.g. a screened dataset) as the live graph
 would record it: per episode, EnvObservation steps 0..L (the last one truncated/terminated),
-AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from `oracle/<task>`;
+AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from `oracle/<task>`
+(on an image task each observation's pixels as its PNG on `/nmrm/observation_image`, as env_sim
+sends them, and the state's other values in the EnvObservation; a frame for people on `/nmrm/frame`);
 then the dataset's comparisons (`TrajectoryDataset.preferences`) as TrajectoryPreference messages.
 
-`load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations,
+`load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations
+(on an image task with the pixels of their observation images put back in front),
 labels from TrajectoryReturn messages (in the same bag, or in labels-only bags given beside it,
 joined by (source, task, episode)), comparisons from TrajectoryPreference messages joined the same
 way (an episode that is only compared has return NaN), oracle ground truth from OracleStep if
@@ -14,7 +17,7 @@ present. An episode's
 (`/robot1/nmrm/...`, `/robot2/nmrm/...`) and their equal episode numbers do not collide; the
 dataset's `meta["sources"]` and `meta["episodes"]` say where each trajectory came from. Episodes that cannot be
 used are skipped and counted by reason, never used silently:
-  missing_steps, conflicting_duplicates, no_final_observation, wrong_state_size, no_label,
+  missing_steps, conflicting_duplicates, no_final_observation, wrong_state_size, missing_image, no_label,
   label_length_mismatch; comparisons of an episode not used, or of another length than it has,
   are counted the same way (comparison_of_unused_episode, comparison_length_mismatch).
 Identical repeated observations (env_sim re-publishing after an action timeout) are not errors.
@@ -32,6 +35,7 @@ import numpy as np
 from ..datasets.trajectories import TrajectoryDataset
 from ..tasks import task_info
 from .label_records import comparison_record, label_record
+from .observation_images import IMAGE_TOPIC, BagImages
 from .reader import BagError, iter_decoded
 from .schemas import TOPIC_TYPES, split_topic
 from .writer import BagWriter
@@ -87,6 +91,7 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                     preference_labeller) -> None:
     from ..tasks import task_info
     from ..tasks.frames import encode_frame, frame_id, image_state_frame
+    from ..tasks.image_states import IMAGE_STATE_FORMAT, encode_image_state, vector_part
 
     t = start_ns
     image_shape = task_info(ds.task).image_shape  # an image state: its frame for people, as env_sim renders it
@@ -98,10 +103,14 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                 final = step == length
                 state = ds.final_states[i] if final else ds.states[i, step]
                 privileged = () if ds.privileged is None or final else ds.privileged[i, step]
+                if image_shape:  # the pixels as the observation image, as env_sim sends them
+                    bag.write_dict(IMAGE_TOPIC, FRAME_TYPE, {
+                        "header": stamped_header(t, frame_id(e, step)), "format": IMAGE_STATE_FORMAT,
+                        "data": encode_image_state(state, image_shape)}, t)
                 bag.write_dict(TOPIC[T_OBS], T_OBS, {
                     "header": stamped_header(t, ds.task), "task": ds.task, "episode": e, "step": step,
-                    "state": [float(x) for x in state], "terminated": False, "truncated": final,
-                    "privileged": [float(x) for x in privileged]}, t)
+                    "state": [float(x) for x in (vector_part(state, image_shape) if image_shape else state)],
+                    "terminated": False, "truncated": final, "privileged": [float(x) for x in privileged]}, t)
                 if image_shape:
                     frame = image_state_frame(state, image_shape)
                     bag.write_dict(FRAME_TOPIC, FRAME_TYPE, {
@@ -170,11 +179,12 @@ def _source(topic: str) -> str:
 
 def _read(path: Path):
     """Observations and labels keyed by (source, task, episode), oracle steps by (source, episode),
-    comparisons as (key a, key b, message); the source is the namespace of the topic ('' for
-    /nmrm/...), or a comparison's own source_a / source_b where given."""
-    obs, labels, oracle, prefs = defaultdict(list), defaultdict(list), defaultdict(dict), []
+    comparisons as (key a, key b, message), observation images' PNG bytes by (source, episode,
+    step); the source is the namespace of the topic ('' for /nmrm/...), or a comparison's own
+    source_a / source_b where given."""
+    obs, labels, oracle, prefs, images = defaultdict(list), defaultdict(list), defaultdict(dict), [], BagImages()
     for topic, type_name, _, m in iter_decoded(path):
-        if type_name not in (T_OBS, T_RET, T_ORC, T_PREF):
+        if images.take(topic, type_name, m) or type_name not in (T_OBS, T_RET, T_ORC, T_PREF):
             continue
         source = _source(topic)
         if type_name == T_PREF:
@@ -186,7 +196,7 @@ def _read(path: Path):
             labels[(source, m.task, int(m.episode))].append(m)
         else:
             oracle[(source, int(m.episode))][int(m.step)] = m
-    return obs, labels, oracle, prefs
+    return obs, labels, oracle, prefs, images
 
 
 def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None = None
@@ -200,23 +210,23 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
     """
     recordings, extra_labels, comparisons = [], defaultdict(list), []
     for path in paths:
-        obs, labels, oracle, prefs = _read(Path(path))
+        obs, labels, oracle, prefs, images = _read(Path(path))
         comparisons.extend(c for c in prefs if labeller is None or c[2].labeller == labeller)
         if obs:
-            recordings.append((Path(path), obs, labels, oracle))
+            recordings.append((Path(path), obs, labels, oracle, images))
         else:
             for key, ls in labels.items():
                 extra_labels[key].extend(ls)
     if not recordings:
         raise BagError(f"no EnvObservation messages in {', '.join(map(str, paths))}")
-    tasks = {k[1] for _, obs, _, _ in recordings for k in obs}
+    tasks = {k[1] for _, obs, *_ in recordings for k in obs}
     if task is None:
         if len(tasks) != 1:
             raise BagError(f"the bags hold episodes of several tasks {sorted(tasks)}; choose one")
         task = tasks.pop()
     info = task_info(task)
     for key in extra_labels:
-        owners = [p for p, obs, _, _ in recordings if key in obs]
+        owners = [p for p, obs, *_ in recordings if key in obs]
         if len(owners) > 1:
             raise BagError(f"labels-only bag labels {key}, which is in several recordings "
                            f"({', '.join(map(str, owners))}); give them separately")
@@ -225,12 +235,13 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
     comparisons = [c for c in comparisons if c[2].task == task]
     compared = {key for a, b, _ in comparisons for key in (a, b)}
     rows, index = [], {}
-    for _, obs, labels, oracle in recordings:
+    for _, obs, labels, oracle, images in recordings:
         for key in sorted(k for k in obs if k[1] == task):
             report.episodes_seen += 1
-            row, reason = _episode(obs[key], labels.get(key, []) + extra_labels.get(key, []),
-                                   oracle.get((key[0], key[2]), {}), info.state_size, labeller, report,
-                                   compared=key in compared)
+            messages, reason = _with_pixels(obs[key], images, key[0], info)
+            row, reason = (None, reason) if reason else _episode(
+                messages, labels.get(key, []) + extra_labels.get(key, []), oracle.get((key[0], key[2]), {}),
+                info.state_size, labeller, report, compared=key in compared)
             if reason:
                 report.skipped[reason] += 1
             else:
@@ -268,6 +279,24 @@ def _comparisons(comparisons: list, index: dict, ds: TrajectoryDataset, report: 
     report.comparisons_used = len(out)
     ds.meta["comparisons"] = records
     return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+
+def _with_pixels(messages, images: BagImages, source: str, info) -> tuple:
+    """(messages, '') with an image task's pixels put back in front of each observation's state
+    (`BagImages.whole_state`); (None, 'missing_image') if an image is missing or cannot be decoded."""
+    if not info.image_shape:
+        return messages, ""
+    from types import SimpleNamespace
+
+    out = []
+    for m in messages:
+        try:
+            state = images.whole_state(source, m, info)
+        except ValueError:
+            return None, "missing_image"
+        out.append(SimpleNamespace(episode=m.episode, step=m.step, terminated=m.terminated, truncated=m.truncated,
+                                   privileged=getattr(m, "privileged", ()), state=state))
+    return out, ""
 
 
 def _episode(messages, labels, oracle, state_size, labeller, report, compared=False):

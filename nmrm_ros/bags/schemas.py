@@ -29,6 +29,7 @@ TOPIC_TYPES = {
     "/nmrm/oracle_step": "nmrm_msgs/msg/OracleStep",
     "/nmrm/trajectory_preference": "nmrm_msgs/msg/TrajectoryPreference",
     "/nmrm/frame": "sensor_msgs/msg/CompressedImage",  # env_sim render:=true (nmrm_ros.tasks.frames)
+    "/nmrm/observation_image": "sensor_msgs/msg/CompressedImage",  # an image task's pixels (tasks.image_states)
 }
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bags.observation_images import BagImages
 from ..bags.reader import BagError, iter_decoded
 from ..bags.schemas import split_topic
 from .traces import oracle_traces
@@ -55,9 +56,13 @@ def _judges_privileged(task: str, privileged: np.ndarray | None) -> bool:
 
 def read_episodes(bag: str | Path) -> dict:
     """Every complete episode of a bag, keyed (source, episode), in recorded order."""
+    from ..tasks import task_info
+
     obs, served, oracle = defaultdict(dict), defaultdict(dict), defaultdict(dict)
-    task = {}
+    task, images = {}, BagImages()
     for topic, type_name, _, m in iter_decoded(bag):
+        if images.take(topic, type_name, m):
+            continue
         kind = type_name.rsplit("/", 1)[-1]
         key = (_source(topic), int(m.episode)) if kind in (_OBS, _REWARD, _ORACLE) else None
         if kind == _OBS:
@@ -72,7 +77,11 @@ def read_episodes(bag: str | Path) -> dict:
         last = max(steps)
         if sorted(steps) != list(range(last + 1)) or last == 0:
             continue
-        states = np.array([list(steps[t].state) for t in range(last)], np.float32)
+        info = task_info(task[key])
+        try:  # an image task's pixels from its observation images
+            states = np.stack([images.whole_state(key[0], steps[t], info) for t in range(last)])
+        except ValueError:  # an image missing: not a complete episode
+            continue
         sizes = {len(getattr(steps[t], "privileged", ())) for t in range(last)}
         privileged = (np.array([list(steps[t].privileged) for t in range(last)], np.float32)
                       if len(sizes) == 1 and 0 not in sizes else None)

@@ -33,6 +33,7 @@ from .format import (CODEBASE_VERSION, CHUNKS_SIZE, DATA_FILE_MB, DATA_PATH, DEF
                      INFO_PATH, NMRM_DIR, STATS_PATH, VIDEO_FILE_MB, VIDEO_PATH, LeRobotError, aggregate_stats,
                      arrow_column, feature_stats, image_stats, next_file, stats_json, temporary_sibling,
                      write_json, write_tasks)
+from ..bags.observation_images import BagImages
 from .video import VideoWriter, video_info
 
 CAMERA = "observation.images.render"
@@ -64,9 +65,11 @@ class _Episode:
     source: str
     task: str
     episode: int
-    states: dict = field(default_factory=dict)   # step -> (state, terminated, truncated, log time ns)
+    states: dict = field(default_factory=dict)   # step -> (state, terminated, truncated, log time ns); as read:
+                                                 # the EnvObservation in place of the state (`_usable` decodes it)
     actions: dict = field(default_factory=dict)  # step -> action vector
     frames: dict = field(default_factory=dict)   # step -> (format, bytes)
+    images: BagImages | None = None              # its recording's observation images (an image task's pixels)
 
 
 def _read_bags(paths: list):
@@ -83,17 +86,18 @@ def _read_bags(paths: list):
     labels, comparisons = [], []
     for path in paths:
         episodes: dict = {}
-        actions, frames = defaultdict(dict), defaultdict(dict)
+        actions, frames, images = defaultdict(dict), defaultdict(dict), BagImages()
         for topic, type_name, log_ns, m in iter_decoded(path):
             try:
                 source = split_topic(topic)[0]
             except ValueError:
                 continue
+            if images.take(topic, type_name, m):
+                continue
             if type_name == T_OBS:
                 key = (source, m.task, int(m.episode))
                 ep = episodes.setdefault(key, _Episode(*key))
-                ep.states.setdefault(int(m.step), (np.asarray(m.state, np.float32), bool(m.terminated),
-                                                   bool(m.truncated), int(log_ns)))
+                ep.states.setdefault(int(m.step), (m, bool(m.terminated), bool(m.truncated), int(log_ns)))
             elif type_name == T_ACT:
                 actions[(source, int(m.episode))][int(m.step)] = np.asarray(m.action, np.float32)
             elif type_name == "sensor_msgs/msg/CompressedImage":
@@ -104,6 +108,8 @@ def _read_bags(paths: list):
                 labels.append((source, m))
             elif type_name == T_PREF:
                 comparisons.append((source, m))
+        for ep in episodes.values():
+            ep.images = images
         (recordings if episodes else others).append((path, episodes, actions, frames))
     owner, episodes = {}, {}
     for path, eps, actions, frames in recordings:
@@ -130,8 +136,14 @@ def _read_bags(paths: list):
     return episodes, labels, comparisons
 
 
-def _usable(ep: _Episode, state_size: int) -> str:
-    """'' if the episode can be exported, else the reason (load_bag_dataset's names)."""
+def _usable(ep: _Episode, info) -> str:
+    """'' if the episode can be exported, else the reason (load_bag_dataset's names); its states
+    made whole (an image task's pixels put back from its observation images)."""
+    state_size = info.state_size
+    try:
+        ep.states = {t: (ep.images.whole_state(ep.source, m, info), *rest) for t, (m, *rest) in ep.states.items()}
+    except ValueError:
+        return "missing_image"
     steps = sorted(ep.states)
     length = steps[-1]
     if steps != list(range(length + 1)):
@@ -206,7 +218,7 @@ def export_lerobot(bags: list, out: str | Path, checkpoint: str | Path | None = 
     report = ExportReport(out=str(out))
     chosen = []
     for key in sorted(k for k in episodes if k[1] == task):
-        reason = _usable(episodes[key], info.state_size)
+        reason = _usable(episodes[key], info)
         if reason:
             report.skipped[reason] += 1
         else:

@@ -128,21 +128,22 @@ class AgentNode(NmrmNode):
         if p["observe"] not in ("reward_step", "observation"):
             raise NodeError(f"unknown observe {p['observe']!r}: use 'reward_step' or 'observation'")
         for i, robot in enumerate(self.robots):
+            # on an image task: the pixels joined from robot i's nmrm/observation_image
             if self.learner is not None:
-                self.subs.append(self.create_subscription(
-                    RewardStep, robot_topic(robot, REWARD_STEP),
-                    lambda m, i=i: self.learner.on_reward_step(m, i), STEP_QOS))
+                subs = self.subscribe_steps(RewardStep, robot_topic(robot, REWARD_STEP),
+                                            lambda m, i=i: self.learner.on_reward_step(m, i), self.info,
+                                            fields=("state", "augmented_state"))
                 self.label_subs.append(self.create_subscription(
                     TrajectoryReturn, robot_topic(robot, TRAJECTORY_RETURN),
                     lambda m, i=i: self.learner.on_label(m, i), STEP_QOS))
             elif p["observe"] == "reward_step":
-                self.subs.append(self.create_subscription(
-                    RewardStep, robot_topic(robot, REWARD_STEP),
-                    lambda m, i=i: self.act(m, m.augmented_state, i), STEP_QOS))
+                subs = self.subscribe_steps(RewardStep, robot_topic(robot, REWARD_STEP),
+                                            lambda m, i=i: self.act(m, m.augmented_state, i), self.info,
+                                            fields=("state", "augmented_state"))
             else:
-                self.subs.append(self.create_subscription(
-                    EnvObservation, robot_topic(robot, OBSERVATION),
-                    lambda m, i=i: self.act(m, m.state, i), STEP_QOS))
+                subs = self.subscribe_steps(EnvObservation, robot_topic(robot, OBSERVATION),
+                                            lambda m, i=i: self.act(m, m.state, i), self.info)
+            self.subs.append(subs[0])  # robot i's step topic (its image topic beside it: subs[1:])
         self.sub = self.subs[0]
         self.output_timer = self.create_timer(0.05, self._open_outputs)
         self.exit_with_upstream(self.subs)

@@ -24,6 +24,11 @@ With `render`, each `render_every`-th step's `env.render()` (and the final one) 
 `nmrm/frame` as a sensor_msgs/CompressedImage (JPEG or PNG, at most `render_width` pixels wide;
 header.frame_id names its episode and step: `nmrm_ros.tasks.frames`), so bags and the labelling
 page have what a person can watch.
+On an image task (`TaskInfo.image_shape`) the state's pixels go out as a lossless PNG
+sensor_msgs/CompressedImage on `nmrm/observation_image` just before each EnvObservation (header
+as the frames': `nmrm_ros.tasks.image_states`), and the EnvObservation carries the rest of the
+state; the consumers join them (`NmrmNode.subscribe_steps`). The observation image's
+subscriptions must match too before the first episode.
 Before the first episode the node waits until at least `wait_for_subscribers` subscriptions, among
 them those of every node named in `wait_for_nodes`, match its observation topic and an action
 publisher is matched (up to `startup_timeout` s), then `start_delay` s more (time for the other
@@ -41,7 +46,7 @@ from nmrm_msgs.msg import AgentAction, EnvObservation, TrajectoryReturn
 from ..ros.messages import as_vector, to_float_list
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import NodeError, Param, require_task, subscribed_nodes
-from ..ros.topics import ACTION, FRAME, OBSERVATION, STEP_QOS, TRAJECTORY_RETURN
+from ..ros.topics import ACTION, FRAME, OBSERVATION, OBSERVATION_IMAGE, STEP_QOS, TRAJECTORY_RETURN
 
 PARAMETERS = {
     "task": Param("key", "timer | moving | key | charger | lunar_lander, or gym:<id> | <module>:<attribute>"),
@@ -110,6 +115,11 @@ class EnvSimNode(NmrmNode):
         self.ready_at = None
 
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
+        self.images = None  # an image task's observation images
+        if self.info.image_shape:
+            from ..ros.observation_images import ObservationImagePublisher
+
+            self.images = ObservationImagePublisher(self, self.info, OBSERVATION_IMAGE)
         if self.render:
             from sensor_msgs.msg import CompressedImage
 
@@ -144,6 +154,7 @@ class EnvSimNode(NmrmNode):
         now = time.monotonic()
         if not self.started:
             ready = (self.pub.get_subscription_count() >= self.wait_for
+                     and (self.images is None or self.images.pub.get_subscription_count() >= self.wait_for)
                      and self.sub.get_publisher_count() >= 1
                      and not self.missing_nodes())
             if ready and self.ready_at is None:
@@ -247,10 +258,13 @@ class EnvSimNode(NmrmNode):
         self.publish_observation(False, False)
 
     def publish_observation(self, terminated: bool, truncated: bool) -> None:
+        state, stamp = self.state, self.get_clock().now().to_msg()
+        if self.images is not None:  # the pixels as an image, the rest in the observation
+            state = self.images.publish(state, self.episode, self.step_index, stamp)
         msg = EnvObservation(task=self.task, episode=self.episode, step=self.step_index,
-                             state=to_float_list(self.state), terminated=terminated, truncated=truncated,
+                             state=to_float_list(state), terminated=terminated, truncated=truncated,
                              privileged=to_float_list(self.privileged))
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = stamp
         msg.header.frame_id = self.task
         self.sent_at = time.monotonic()
         self.pub.publish(msg)

@@ -30,7 +30,7 @@ from ..web_server import is_any_address
 
 DEFAULT_TOPICS = ["/nmrm/viz/arena", "/nmrm/viz/pose", "/nmrm/viz/path", "/nmrm/viz/reward",
                   "/nmrm/viz/reward_std", "/nmrm/viz/hidden", "/diagnostics", "/nmrm/reward_step",
-                  "/nmrm/trajectory_return"]
+                  "/nmrm/trajectory_return", "/nmrm/observation_image"]
 
 PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,

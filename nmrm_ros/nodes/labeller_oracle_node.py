@@ -114,8 +114,7 @@ class LabellerOracleNode(NmrmNode):
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
         self.pref_pub = self.create_publisher(TrajectoryPreference, TRAJECTORY_PREFERENCE, STEP_QOS)
         self.step_pub = self.create_publisher(OracleStep, ORACLE_STEP, STEP_QOS)
-        self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
-        self.exit_with_upstream(self.sub)
+        self.exit_with_upstream(self.subscribe_steps(EnvObservation, OBSERVATION, self.on_observation, self.info))
         self.diagnose(lambda: {"steps": self.messages_received, "labelled_episodes": self.labelled,
             "comparisons": self.compared, "broken_episodes": self.follower.broken_episodes},
             rate_of="steps",

@@ -193,7 +193,7 @@ class LabellerWebNode(NmrmNode):
         self.oracle_states: list = []  # gold_every: what the oracle steps with, per step
         self.return_pub = self.create_publisher(TrajectoryReturn, TRAJECTORY_RETURN, STEP_QOS)
         self.pref_pub = self.create_publisher(TrajectoryPreference, TRAJECTORY_PREFERENCE, STEP_QOS)
-        self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
+        self.subs = self.subscribe_steps(EnvObservation, OBSERVATION, self.on_observation, self.info)
         self.frames = FrameStore(int(p["frames_mb"]) * 1_000_000)
         self.frame_sub = self.create_subscription(CompressedImage, FRAME, self.on_frame, STEP_QOS)
         allowed_hosts = None if is_any_address(str(p["host"])) else set()  # filled once the port is bound
@@ -220,7 +220,7 @@ class LabellerWebNode(NmrmNode):
             self.tell_starter(f"labelling page: {url} (task {self.task}, labeller person/{person}, "
                                    f"{len(self.queue.done_before[person])} episode(s) labelled before, "
                                    f"labels to {self.stores[person].path})")
-        self.exit_with_upstream(self.sub)
+        self.exit_with_upstream(self.subs)
         self.diagnose(lambda: {"steps": self.messages_received,
             "finished_episodes": self.finished}, rate_of="steps")
 

@@ -6,7 +6,9 @@ geometry_msgs/PoseStamped, sensor_msgs/JointState, sensor_msgs/LaserScan, std_ms
 or any message whose fields are numbers; cameras, sensor_msgs/Image and CompressedImage, resized),
 keeps the latest value of each, and `rate` times a second publishes one EnvObservation on
 `nmrm/observation`, for `task`: the cameras' pixels then the other fields in order as its state,
-the fields of inputs marked privileged as its privileged state. A task spec with a frozen encoder
+the fields of inputs marked privileged as its privileged state. The pixels travel as a PNG on
+`nmrm/observation_image` beside the EnvObservation, as env_sim sends an image task's
+(`nmrm_ros.ros.observation_images`). A task spec with a frozen encoder
 (`encoder=<module>:<attribute>[,encoder_weights=<file>]`, `nmrm_ros.tasks.frozen_encoder`) gets the
 encoder's features of the cameras' frame in place of its pixels, as the task's own env would give.
 A tick with an input older than `stale_after` s (or never seen) publishes nothing and is counted
@@ -33,7 +35,7 @@ from nmrm_msgs.msg import EnvObservation
 from ..ros.messages import to_float_list
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import NodeError, Param, require_task
-from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
+from ..ros.topics import ACTION, OBSERVATION, OBSERVATION_IMAGE, STEP_QOS
 
 PARAMETERS = {
     "spec": Param("", "robot spec YAML (observation:, episode:, action: sections; see nmrm_ros.ros.robot_spec)"),
@@ -114,6 +116,11 @@ class ObservationBridgeNode(NmrmNode):
         self.start_delay = float(p["start_delay"])
         self.ready_at = None  # auto_start: when the subscribers were there
         self.pub = self.create_publisher(EnvObservation, OBSERVATION, STEP_QOS)
+        self.images = None  # without a frozen encoder, the cameras' pixels as observation images
+        if self.info.image_shape:
+            from ..ros.observation_images import ObservationImagePublisher
+
+            self.images = ObservationImagePublisher(self, self.info, OBSERVATION_IMAGE)
         for i, inp in enumerate(self.spec.inputs):
             self.create_subscription(message_class(inp.type_name), inp.topic,
                                      lambda msg, i=i: self.on_input(i, msg), _qos(inp.qos))
@@ -220,15 +227,19 @@ class ObservationBridgeNode(NmrmNode):
 
     def publish(self, sample: tuple, terminated: bool = False, truncated: bool = False) -> None:
         state, privileged = sample
+        stamp = self.get_clock().now().to_msg()
+        if self.images is not None:
+            state = self.images.publish(np.asarray(state), self.episode, self.step, stamp)
         msg = EnvObservation(task=self.task, episode=self.episode, step=self.step, state=to_float_list(state),
                              privileged=to_float_list(privileged), terminated=terminated, truncated=truncated)
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = stamp
         msg.header.frame_id = self.task
         self.pub.publish(msg)
 
     def on_tick(self) -> None:
         if self.waiting:
-            if self.pub.get_subscription_count() < self.wait_for:
+            if self.pub.get_subscription_count() < self.wait_for or (
+                    self.images is not None and self.images.pub.get_subscription_count() < self.wait_for):
                 return
             if self.wait_for_agent and self.count_publishers(self.action_topic) < 1:
                 return

@@ -9,6 +9,9 @@ only (the paper's choice). The recurrent state is
 reset to (h'_0, c'_0) at step 0 of each episode. The episode's final observation
 (terminated/truncated) gets a RewardStep too, flagged the same way: its augmented state is the
 terminal state an RL agent bootstraps from; its reward belongs to no transition.
+On an image task the observation's pixels come on `nmrm/observation_image` beside it (joined by
+`NmrmNode.subscribe_steps`), and RewardStep's `state` and `augmented_state` leave them out
+([vector part], [vector part, served]): a consumer joins them with the same image.
 
 mode "model": the CSC / Instance / Embedding LSTM (or Instance NN) of `checkpoint`, stepped with
 the NumPy online stepper. An ensemble checkpoint serves the members' mean reward, their spread in
@@ -103,8 +106,8 @@ class RewardModelNode(NmrmNode):
         self.compute_s: deque = deque(maxlen=COMPUTE_WINDOW)  # the last steps' compute times (s)
         self.steps_computed = 0
         self.pub = self.create_publisher(RewardStep, REWARD_STEP, STEP_QOS)
-        self.sub = self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)
-        self.exit_with_upstream(self.sub)
+        self.subs = self.subscribe_steps(EnvObservation, OBSERVATION, self.on_observation, self.info)
+        self.exit_with_upstream(self.subs)
         served = f", serving [s_t, {self.served}]" if mode == "model" else ""
         self.get_logger().info(f"{mode} mode, task {self.task}, source {self.source!r}{served}")
         self.diagnose(lambda: {"steps": self.messages_received, "broken_episodes": self.follower.broken_episodes,
@@ -171,9 +174,10 @@ class RewardModelNode(NmrmNode):
         self.steps_computed += 1
         if msg.terminated or msg.truncated:
             self.follower.finish()
-        out = RewardStep(episode=msg.episode, step=msg.step, state=list(msg.state),
+        vector = state[self.info.image_values:]  # an image task's pixels travel as its observation image
+        out = RewardStep(episode=msg.episode, step=msg.step, state=to_float_list(vector),
                          hidden=to_float_list(hidden),
-                         augmented_state=to_float_list(np.concatenate([state, hidden])),
+                         augmented_state=to_float_list(np.concatenate([vector, hidden])),
                          reward=float(reward), reward_std=float(getattr(self.stepper, "reward_std", 0.0)),
                          return_std=float(getattr(self.stepper, "return_std", 0.0)), source=self.source,
                          terminated=msg.terminated, truncated=msg.truncated)

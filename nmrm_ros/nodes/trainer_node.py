@@ -110,7 +110,7 @@ class TrainerNode(NmrmNode):
         self.states: list = []
         self._read_bags([b for b in p["bags"] if b])
         self.param_clients = {name: self._client(name) for name in (p["reward_model"], p["labeller_web"], p["agent"]) if name}
-        subs = [self.create_subscription(EnvObservation, OBSERVATION, self.on_observation, STEP_QOS)]
+        subs = self.subscribe_steps(EnvObservation, OBSERVATION, self.on_observation, self.info)
         if p["feedback"] != "preferences":
             subs.append(self.create_subscription(TrajectoryReturn, TRAJECTORY_RETURN, self.on_label, STEP_QOS))
         if p["feedback"] != "returns":

@@ -4,7 +4,8 @@ The standard topic of ROS 2 tools (`ros2 topic echo /diagnostics`, rqt_runtime_m
 Diagnostics panel, diagnostic_aggregator): one DiagnosticStatus per node, named
 `nmrm: <node's fully qualified name>`, with the node's counters as key/values and, for the counter
 named by `rate_of`, its rate per second over the last period. The level is WARN while the node's
-`warn()` returns a message (e.g. broken episodes, dropped actions), else OK.
+`warn()` returns a message (e.g. broken episodes, dropped actions), or while an image task's
+observation images were refused or missing (`NmrmNode.subscribe_steps`), else OK.
 
     Diagnostics(node, lambda: {"steps": n.steps, "broken_episodes": n.broken}, rate_of="steps",
                 warn=lambda: "3 broken episode(s)" if n.broken else None)
@@ -53,6 +54,13 @@ class Diagnostics:
             values[f"{self.rate_of}_per_second"] = f"{rate:.2f}"
             message = f"{rate:.1f} {self.rate_of.replace('_', ' ')}/s"
         problem = self.warn() if self.warn is not None else None
+        pairings = getattr(self.node, "image_pairings", [])  # an image task's steps joined with their images
+        if pairings:
+            refused, unpaired = sum(p.bad_images for p in pairings), sum(p.unpaired for p in pairings)
+            values.update(observation_images_refused=refused, steps_without_image=unpaired)
+            if refused or unpaired:
+                lost = f"{refused} observation image(s) refused, {unpaired} step(s) without their image"
+                problem = f"{problem}; {lost}" if problem else lost
         return DiagnosticStatus(
             level=DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, name=self.name,
             hardware_id=self.hardware_id, message=f"{message}; {problem}" if problem else message,

@@ -49,6 +49,8 @@ class NmrmNode(Node):
         #: None while running; set it to end the process with that code (after the current callback)
         self.exit_code: int | None = None
         self.diagnostics = None
+        #: the `ImagePairing`s of `subscribe_steps` (their counts: images refused, messages unpaired)
+        self.image_pairings: list = []
         super().__init__(node_name or self.executable, **kwargs)
         #: the declared parameters' values (name -> value), checked against their Params
         self.params: dict = declare_parameters(self, self.PARAMETERS)
@@ -58,6 +60,28 @@ class NmrmNode(Node):
         publishers and have none left, or call `on_gone()` then (`node_main.exit_with_upstream`)."""
         if self.params.get("exit_with_upstream"):
             exit_with_upstream(self, subscriptions, on_gone=on_gone)
+
+    def subscribe_steps(self, msg_type, topic: str, callback: Callable, info, fields: tuple = ("state",)) -> list:
+        """The subscriptions that give `callback` each message of `topic` (EnvObservation,
+        RewardStep); on an image task (`info.image_shape`) with the pixels of its observation
+        image (`topics.observation_image_topic(topic)`) put back in front of `fields`
+        (`ros.observation_images`; an image refused is a warning line, at most one per 10 s)."""
+        from .topics import STEP_QOS, observation_image_topic
+
+        if not info.image_shape:
+            return [self.create_subscription(msg_type, topic, callback, STEP_QOS)]
+        from sensor_msgs.msg import CompressedImage
+
+        from .observation_images import ImagePairing
+
+        def refused(why: str) -> None:
+            self.get_logger().warning(f"observation image refused ({pairing.bad_images} so far): {why}",
+                                      throttle_duration_sec=10.0)
+
+        pairing = ImagePairing(info.image_shape, info.state_size, callback, fields, on_error=refused)
+        self.image_pairings.append(pairing)
+        return [self.create_subscription(msg_type, topic, pairing.on_message, STEP_QOS),
+                self.create_subscription(CompressedImage, observation_image_topic(topic), pairing.on_image, STEP_QOS)]
 
     def tell_starter(self, text: str) -> None:
         """Say `text` (e.g. a URL with an access token) to the person who started the node only:

@@ -15,8 +15,10 @@ from ..ros.node_main import TEARDOWN_CUT_EXIT, _executor
 
 from nmrm_msgs.msg import (AgentAction, EnvObservation, OracleStep, RewardStep, TrajectoryPreference,
                             TrajectoryReturn)
-from ..ros.topics import (ACTION, OBSERVATION, ORACLE_STEP, REWARD_STEP, STEP_QOS,
-                                 TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN)
+from sensor_msgs.msg import CompressedImage
+
+from ..ros.topics import (ACTION, OBSERVATION, OBSERVATION_IMAGE, ORACLE_STEP, REWARD_STEP, STEP_QOS,
+                          TRAJECTORY_PREFERENCE, TRAJECTORY_RETURN)
 
 #: episodes from this number on are `Capture.handshake` probes
 PROBE_EPISODE = 1000
@@ -43,7 +45,8 @@ def launch(*arguments: str) -> subprocess.Popen:
 _TOPICS = {"observation": (EnvObservation, OBSERVATION), "action": (AgentAction, ACTION),
            "reward_step": (RewardStep, REWARD_STEP), "label": (TrajectoryReturn, TRAJECTORY_RETURN),
            "oracle_step": (OracleStep, ORACLE_STEP),
-           "preference": (TrajectoryPreference, TRAJECTORY_PREFERENCE)}
+           "preference": (TrajectoryPreference, TRAJECTORY_PREFERENCE),
+           "observation_image": (CompressedImage, OBSERVATION_IMAGE)}
 
 
 class Capture:
@@ -105,6 +108,27 @@ class Capture:
             if self.spin_until(answered, 1.0):
                 return sent
         raise AssertionError(f"no reply on {topics} to {sent} probe episode(s) in {timeout} s")
+
+    def joined(self, key: str, task: str) -> list:
+        """The messages captured on `key` ("observation", "reward_step"), on an image task with the
+        pixels of the captured observation images put back in front of their states, as a node's
+        `subscribe_steps` does (`ros.observation_images.ImagePairing`); on another task as captured."""
+        from ..ros.observation_images import ImagePairing
+        from ..tasks import task_info
+
+        info = task_info(task)
+        if not info.image_shape:
+            return list(self.msgs[key])
+        out: list = []
+        fields = ("state", "augmented_state") if key == "reward_step" else ("state",)
+        pairing = ImagePairing(info.image_shape, info.state_size, out.append, fields,
+                               capacity=len(self.msgs["observation_image"]) + len(self.msgs[key]) + 1)
+        for image in self.msgs["observation_image"]:
+            pairing.on_image(image)
+        for m in self.msgs[key]:
+            pairing.on_message(m)
+        assert pairing.bad_images == 0, pairing.last_error
+        return out
 
     def publisher(self, typ, topic):
         return self.node.create_publisher(typ, topic, STEP_QOS)
