@@ -22,7 +22,9 @@ shaping; the paper's Figure 10): reproduce_rl_lunar_lander_components.png.
 
 Output (bench/results/): reproduce_rl.png (oracle-return curves, median and interquartile range
 over runs of a moving average of 20 episodes) and reproduce_rl.txt (final oracle return = mean of the last 50
-episodes, mean +/- SEM and worst seed), and every run's curve.csv + agent.json, copied to
+episodes, mean +/- SEM and worst seed; then the kept policy of each run, policy.zip, greedy on 50 new
+episodes as `nmrm rl evaluate` runs it: what a user gets, where Figure 4's number is the training
+episodes' at epsilon 0.05), and every run's curve.csv + agent.json + greedy.json, copied to
 bench/results/reproduce_rl/agents/ (copy them into --work/agents to continue an incomplete table).
 Lunar Lander's models (~90 KB each; an agent on one costs ~1 h, and a new model means a new agent)
 are kept in bench/results/reproduce_rl/models/ (copy them into --work/models likewise).
@@ -33,6 +35,7 @@ from __future__ import annotations
 import installed_check  # noqa: F401  (exits if the installed nmrm_ros is not the source tree's)
 import argparse
 import csv
+import hashlib
 import json
 import os
 import time
@@ -56,6 +59,8 @@ KINDS = {
     "markovian": ("Instance Space NN (Markovian)", "instance_nn"),
 }
 FINAL_WINDOW = 50
+#: the kept policy (policy.zip) is also judged greedy on this many new episodes (`nmrm rl evaluate`)
+GREEDY_EPISODES = 50
 
 
 def model_path(work: Path, task: str, arch: str, seed: int) -> Path:
@@ -104,12 +109,43 @@ def train_agent_job(job: tuple) -> dict:
     out = work / "agents" / f"{task}_{kind}_seed{seed}"
     if (out / "curve.csv").is_file() and len(read_curve(out / "curve.csv")) == episodes \
             and learnt_on(out, checkpoint) and not stale_agent(out, task, episodes):
-        return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True}
+        return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": True,
+                "greedy": kept_greedy(out, task)}
     t0 = time.perf_counter()
     train_agent(task, reward, checkpoint=checkpoint, episodes=episodes, seed=seed, out=out,
                 progress=False)
     return {"task": task, "kind": kind, "seed": seed, "out": str(out), "cached": False,
-            "seconds": time.perf_counter() - t0}
+            "seconds": time.perf_counter() - t0, "greedy": kept_greedy(out, task)}
+
+
+def kept_greedy(out: Path, task: str) -> float | None:
+    """Mean oracle return of the agent's kept policy (out/policy.zip: what a user gets) run greedy
+    on GREEDY_EPISODES new episodes (`nmrm rl evaluate`: episode seeds from 10^8, the reward model
+    of its agent.json); cached in out/greedy.json for that policy file (its SHA-256). None without
+    a policy."""
+    policy = out / "policy.zip"
+    if not policy.is_file():
+        return None
+    sha = hashlib.sha256(policy.read_bytes()).hexdigest()
+    cache = out / "greedy.json"
+    if cache.is_file():
+        recorded = json.loads(cache.read_text())
+        if recorded.get("policy_sha256") == sha and recorded.get("episodes") == GREEDY_EPISODES:
+            return float(recorded["oracle_return"])
+    import torch
+
+    torch.set_num_threads(1)
+    from nmrm_ros.rl import evaluate_agent
+
+    result = evaluate_agent(policy, task, episodes=GREEDY_EPISODES)
+    value = float(np.mean(result.returns))
+    cache.write_text(json.dumps({"policy_sha256": sha, "episodes": GREEDY_EPISODES, "oracle_return": value,
+                                 "random_policy": float(np.mean(result.random_returns))}, indent=1) + "\n")
+    return value
+
+
+def greedy_job(job: tuple) -> float | None:
+    return kept_greedy(*job)
 
 
 def stale_agent(out: Path, task: str, episodes: int) -> list[str]:
@@ -185,7 +221,8 @@ def main() -> None:
             curve = read_curve(Path(r["out"]) / "curve.csv")
             final = np.mean([float(row["oracle_return"]) for row in curve[-FINAL_WINDOW:]])
             took = "cached" if r["cached"] else f"{r['seconds']:.0f} s"
-            print(f"  {r['task']:8s} {r['kind']:17s} seed {r['seed']}: final oracle return {final:7.2f} ({took})",
+            greedy = "" if r["greedy"] is None else f", kept policy greedy {r['greedy']:7.2f}"
+            print(f"  {r['task']:8s} {r['kind']:17s} seed {r['seed']}: final oracle return {final:7.2f}{greedy} ({took})",
                   flush=True)
     report(args, time.perf_counter() - start)
 
@@ -254,6 +291,29 @@ def report(args, seconds: float) -> None:
             runs = ", ".join(f"{s}: {x:.1f}" for s, x in zip(seeds, v))
             lines.append(f"{task:8s} {KINDS[kind][0]:32s} {len(v):2d} {med:7.2f} [{q25:6.2f}, {q75:6.2f}] "
                          f"{v.mean():7.2f} ± {sem:5.2f} [{v.min():6.2f}]  {runs}")
+    greedy_jobs = [(args.work / "agents" / f"{t}_{k}_seed{s}", t) for t in args.tasks for k in args.kinds
+                   for s in finals.get((t, k), ((), []))[1]]
+    with ProcessPoolExecutor(args.jobs) as pool:  # evaluated once per policy (greedy.json), then read
+        greedy = dict(zip([(str(o), t) for o, t in greedy_jobs], pool.map(greedy_job, greedy_jobs)))
+    lines.append(f"# the kept policy (policy.zip, what a user gets) greedy on {GREEDY_EPISODES} new episodes "
+                 f"(`nmrm rl evaluate`, seeds from 10^8): median [worst]; per run")
+    greedy_medians = {}
+    for task in args.tasks:
+        for kind in args.kinds:
+            if (task, kind) not in finals:
+                continue
+            seeds = finals[(task, kind)][1]
+            values = [(s, greedy[(str(args.work / "agents" / f"{task}_{kind}_seed{s}"), task)]) for s in seeds]
+            known = np.array([v for _, v in values if v is not None])
+            if not known.size:
+                continue
+            greedy_medians[(task, kind)] = float(np.median(known))
+            runs = ", ".join(f"{s}: {'-' if v is None else f'{v:.1f}'}" for s, v in values)
+            lines.append(f"{task:8s} {KINDS[kind][0]:32s} {len(known):2d} {np.median(known):7.2f} [{known.min():6.2f}]  {runs}")
+    if ("model" in args.kinds and "oracle" in args.kinds) and greedy_medians:
+        lines.append("# kept policies greedy, median CSC / median oracle-with-hidden: " + ", ".join(
+            f"{t} {greedy_medians[(t, 'model')] / greedy_medians[(t, 'oracle')]:.0%}" for t in args.tasks
+            if (t, "model") in greedy_medians and greedy_medians.get((t, "oracle"), 0) > 0))
     if "model" in args.kinds and "oracle" in args.kinds:
         ratios = []
         for task in args.tasks:
@@ -270,7 +330,7 @@ def report(args, seconds: float) -> None:
     kept = args.results / "reproduce_rl" / "agents"   # the curves (not the policies) are kept in git
     for path in sorted((args.work / "agents").glob("*/curve.csv")):
         (kept / path.parent.name).mkdir(parents=True, exist_ok=True)
-        for name in ("curve.csv", "agent.json"):
+        for name in ("curve.csv", "agent.json", "greedy.json"):
             if (path.parent / name).is_file():
                 (kept / path.parent.name / name).write_bytes((path.parent / name).read_bytes())
 
