@@ -359,15 +359,17 @@ def test_a_person_labels_an_episode_in_the_browser(ros_domain, tmp_path):
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (scripts/test.sh installs it with "
                                              "apt when run as root)")
 def test_a_pixel_task_is_played_from_the_frames_the_model_sees(ros_domain, tmp_path):
-    """key_pixels through the graph (env_sim render:=true): the page's episodes carry no pixel
-    numbers (no plot, no arena: the frames are the view) and their frames are the observed image,
-    each pixel drawn 4x4; a label is taken as for any task. Every episode is gold (gold_every 1):
-    the oracle judges it by its privileged state (the positions), not the pixels."""
+    """key_pixels through the graph, env_sim not rendering: the page's episodes carry no pixel
+    numbers (no plot, no arena: the frames are the view) and their frames are the observed image
+    (from nmrm/observation_image), each pixel drawn 4x4, shown in a real browser; a label is taken
+    as for any task. Every episode is gold (gold_every 1): the oracle judges it by its privileged
+    state (the positions), not the pixels."""
     from PIL import Image
+    from playwright.sync_api import sync_playwright
 
     node = WebNode(tmp_path / "labels", task="key_pixels", gold_every=1)
     try:
-        play_episodes(1, task="key_pixels", render=True, render_format="png", render_width=240)
+        play_episodes(1, task="key_pixels")
         queue = node.wait_for_queue(1)
         episode = queue[0]["episode"]
         status, info, _ = node.request("/api/info")
@@ -382,6 +384,13 @@ def test_a_pixel_task_is_played_from_the_frames_the_model_sees(ros_domain, tmp_p
         assert frame.shape == (128, 128, 3)
         assert len(np.unique(frame[::4, ::4].reshape(-1, 3), axis=0)) > 2  # zones and the agent's blob
         np.testing.assert_array_equal(frame[::4, ::4], frame[3::4, 3::4])  # 4x4 blocks of one colour
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 1200, "height": 700})
+            page.goto(node.url)
+            page.wait_for_function("() => { const f = document.querySelector('img.frame');"
+                                   " return f && !f.hidden && f.complete && f.naturalWidth === 128; }", timeout=20000)
+            browser.close()
         status, answer, _ = node.request("/api/label", {"episode": episode, "return": 3.0},
                                          headers={"Origin": node.base})
         assert status == 200 and answer["return"] == 3.0, answer

@@ -6,8 +6,9 @@ Routes (JSON unless said; every one behind the access token when there is one):
                               zones (null: a task of the user's), how the queue is ordered, and
                               what to judge (`info`: the instruction, the zones' legend)
   GET  /api/queue             finished unlabelled episodes, in the order they are asked
-  GET  /api/episode/{n}       one episode's states (L + 1, state size), the steps that have a
-                              rendered frame, and its label if any
+  GET  /api/episode/{n}       one episode's states (L + 1, state size; an image task's without
+                              its pixels), the steps that have a frame (rendered, or on an
+                              image task the image the model sees), and its label if any
   GET  /api/episode/{n}/frame/{t}  the frame of step t (image/jpeg or image/png)
   GET  /api/episode/{n}/frames     the steps that have a frame so far (takes nothing)
   POST /api/label             {"episode": n, "return": x}: label (again: a correction)
@@ -78,7 +79,31 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
     (None: any; the set may be filled once the port is known)."""
     from ..tasks import task_info
 
+    image_shape = task_info(queue.task).image_shape
     image_values = task_info(queue.task).image_values  # an image state's pixels: not sent as numbers
+
+    def frame_steps(ep) -> list:
+        """The steps of `ep` with a frame: those rendered (env_sim render:=true), else on an image
+        task every step, its frame drawn from the image the model sees (`image_state_frame`)."""
+        rendered = frames.steps(ep.episode) if frames is not None else []
+        return rendered or (list(range(len(ep.states))) if image_shape else [])
+
+    def frame_of(episode: int, step: int) -> tuple | None:
+        """(format, bytes) of the frame of (episode, step): the rendered one, else the image of an
+        image task's state there (PNG, each pixel a block), else None."""
+        rendered = frames.get(episode, step) if frames is not None else None
+        if rendered is not None or not image_shape:
+            return rendered
+        from ..tasks.frames import encode_frame, image_state_frame
+
+        try:
+            states = queue.get(episode).states
+        except LabelError:
+            return None
+        if not 0 <= step < len(states):
+            return None
+        shown = image_state_frame(states[step], image_shape)
+        return "png", encode_frame(shown, width=shown.shape[1], fmt="png")
     if tokens is None and token:
         tokens = {token: queue.people[0]}
     if tokens is not None and not set(tokens.values()) <= set(queue.people):
@@ -171,22 +196,22 @@ def make_app(queue: LabelQueue, on_label: Callable, info: dict, token: str | Non
         return web.json_response({"episode": ep.episode, "length": ep.length,
                                   # an image state's pixels are seen as its frames, not plotted
                                   "states": ep.states[:, image_values:].astype(float).round(5).tolist(),
-                                  "frames": frames.steps(ep.episode) if frames is not None else [],
-                                  "frames_expected": frames is not None and frames.any(),
+                                  "frames": frame_steps(ep),
+                                  "frames_expected": bool(image_shape) or (frames is not None and frames.any()),
                                   "label": None if label is None else label.value})
 
     async def api_frames(request: web.Request) -> web.Response:
         """The steps of an episode that have a frame so far (the page asks again while frames are
         still arriving; unlike /api/episode/{n}, this takes nothing)."""
         try:
-            episode = queue.get(int(request.match_info["episode"])).episode
+            ep = queue.get(int(request.match_info["episode"]))
         except LabelError as exc:
             return _error(404, str(exc))
-        return web.json_response({"episode": episode, "frames": frames.steps(episode) if frames is not None else []})
+        return web.json_response({"episode": ep.episode, "frames": frame_steps(ep)})
 
     async def api_frame(request: web.Request) -> web.Response:
         episode, step = int(request.match_info["episode"]), int(request.match_info["step"])
-        frame = frames.get(episode, step) if frames is not None else None
+        frame = frame_of(episode, step)
         if frame is None:
             return _error(404, f"no frame of episode {episode} step {step}")
         return web.Response(body=frame[1], content_type=f"image/{frame[0]}")
