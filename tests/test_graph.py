@@ -346,3 +346,38 @@ def test_agent_runs_a_saved_sb3_policy(capture, tmp_path):
     assert len(got) == 20  # none for the final step
     expected, _ = policy.predict(states, deterministic=True)
     assert [got[(0, t)] for t in range(20)] == [float(a) for a in expected]
+
+
+def test_a_pixel_bag_is_served_again_with_its_images(ros_domain, tmp_path, pixel_checkpoint):
+    """serve_replay.launch.yaml, which names only /nmrm/observation, on a bag of an image task: the
+    observation images go with the observations (replay and recorder both take them), and the
+    recorded rewards are the model's batched forward of the images."""
+    import subprocess
+
+    from nmrm_ros.bags.episodes import load_bag_dataset, write_dataset_bag
+    from nmrm_ros.bags.reader import bag_summary, iter_decoded
+    from nmrm_ros.ros.ament_paths import require_share_dir
+    from nmrm_ros.testing.graph import executable
+    from nmrm_ros.tasks.pixel_navigation import pixel_dataset
+
+    ds = pixel_dataset(generate_screened("key", 2, seed=7, pool_size=40), "key_pixels")
+    bag = write_dataset_bag(ds, tmp_path / "pixels")
+    served = tmp_path / "served"
+    launch_file = require_share_dir("nmrm_ros") / "launch_scripts" / "serve_replay.launch.yaml"
+    proc = subprocess.Popen([executable("nmrm"), "launch", str(launch_file), f"bag:={bag}",
+                             f"checkpoint:={pixel_checkpoint}", f"out:={served}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    code, out = finish(proc, 120)
+    assert code == 0, out
+    steps = int((ds.lengths + 1).sum())
+    summary = bag_summary(served)
+    assert [summary[t][1] for t in ("/nmrm/observation", "/nmrm/observation_image", "/nmrm/reward_step")] == \
+        [steps] * 3, summary
+    back, _ = load_bag_dataset([bag])
+    model, meta = load_checkpoint(pixel_checkpoint, task="key_pixels")
+    rewards = {(m.episode, m.step): m.reward for _, t, _, m in iter_decoded(served) if t.endswith("RewardStep")}
+    for i in range(len(ds)):
+        n = int(ds.lengths[i])
+        states = np.concatenate([back.states[i, :n], back.final_states[i][None]])
+        expected, _ = batched_reference(model, states, meta.served_state)
+        np.testing.assert_allclose([rewards[(i, t)] for t in range(n + 1)], expected, atol=1e-4)

@@ -33,6 +33,19 @@ TOPIC_TYPES = {
 }
 
 
+def with_observation_images(topics: list, available=None) -> list:
+    """`topics` and, after each observation or reward-step topic, the observation-image topic of
+    its graph (an image task's pixels travel there: its states are incomplete without them), if
+    not named already and, when `available` is given, in it: '/robot1/nmrm/observation' brings
+    '/robot1/nmrm/observation_image'."""
+    out = list(topics)
+    for t in topics:
+        for step in ("/nmrm/observation", "/nmrm/reward_step"):
+            image = t[: -len(step)] + "/nmrm/observation_image"
+            if t.endswith(step) and image not in out and (available is None or image in available):
+                out.append(image)
+    return out
+
 
 def split_topic(name: str) -> tuple[str, str]:
     """A fully qualified nmrm topic -> (source namespace, type name):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 
 
-from ..bags.schemas import TOPIC_TYPES, split_topic
+from ..bags.schemas import TOPIC_TYPES, split_topic, with_observation_images
 from ..bags.writer import BagWriter
 from ..ros.field_paths import message_class
 from ..ros.node_base import NmrmNode
@@ -25,7 +25,8 @@ from ..ros.topics import STEP_QOS
 PARAMETERS = {
     "exit_with_upstream": EXIT_WITH_UPSTREAM,
     "output": Param("", "bag directory to create (default: bags/recording_<UTC time>)"),
-    "topics": Param(list(TOPIC_TYPES), "topics to record: nmrm topics, in any namespace"),
+    "topics": Param(list(TOPIC_TYPES), "topics to record: nmrm topics, in any namespace (an observation or "
+                                       "reward-step topic brings its graph's nmrm/observation_image)"),
     "namespaces": Param([""], "record `topics` under each of these namespaces (e.g. [/robot1, /robot2]); "
                               "'' = as given"),
     "flush_period": Param(1.0, "seconds between flushes to disk (the chunk in progress is ended)", 0.001),
@@ -47,8 +48,8 @@ class RecorderNode(NmrmNode):
         super().__init__()
         p = self.params
         output = p["output"] or time.strftime("bags/recording_%Y%m%d_%H%M%S", time.gmtime())
-        topics = [ns.rstrip("/") + "/" + t.lstrip("/") if ns else t
-                  for ns in (p["namespaces"] or [""]) for t in p["topics"]]
+        topics = with_observation_images([ns.rstrip("/") + "/" + t.lstrip("/") if ns else t
+                                          for ns in (p["namespaces"] or [""]) for t in p["topics"]])
         resolved = {}
         for t in topics:
             name = self.resolve_topic_name(t)

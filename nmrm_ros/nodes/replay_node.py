@@ -2,7 +2,9 @@
 
 rate > 0: at the recorded timing scaled by `rate` (2.0 = twice as fast); rate = 0: as fast as
 possible; the topics are reliable and keep-all (nmrm_ros.ros.topics), so subscribers queue what
-they have not taken yet and nothing is lost. `topics` filters (empty = all); `loop` starts over at the end. Before
+they have not taken yet and nothing is lost. `topics` filters (empty = all; an observation or
+reward-step topic brings its graph's observation images, if the bag has them: an image task's
+states are incomplete without them); `loop` starts over at the end. Before
 the first message the node waits for `wait_for_subscribers` subscribers on every replayed topic.
 Without `loop`, the node exits with code 0 once every subscriber has acknowledged the last
 message (at most 30 s). Before the first message the
@@ -16,6 +18,7 @@ import time
 
 
 from ..bags.reader import BagError, bag_summary, iter_raw
+from ..bags.schemas import with_observation_images
 from ..ros.field_paths import message_class
 from ..ros.node_base import NmrmNode
 from ..ros.node_main import NodeError, Param, subscribed_nodes
@@ -54,7 +57,8 @@ class ReplayNode(NmrmNode):
         missing = [t for t in wanted if t not in summary]
         if missing:
             raise NodeError(f"topics {missing} are not in the bag (it has {sorted(summary)})")
-        self.topics = wanted or sorted(summary)
+        # an image task's observations bring their images (bags.schemas.with_observation_images)
+        self.topics = with_observation_images(wanted, available=summary) if wanted else sorted(summary)
         self.pubs = {t: self.create_publisher(message_class(summary[t][0]), t, STEP_QOS) for t in self.topics}
         self.rate = float(p["rate"])
         self.loop = bool(p["loop"])
