@@ -197,19 +197,6 @@ def memory_check(model, task: str, trajectories: int = 300, seed: int = 12345, s
                        _separated(served[:, :k], pairs, separation_tol, min_distance, rng))
 
 
-def _episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray]:
-    """(learnt returns, oracle returns) of `episodes` episodes of `env` under `act`."""
-    learnt, oracle = [], []
-    obs, _ = env.reset(seed=seed)
-    while len(learnt) < episodes:
-        obs, _, terminated, truncated, info = env.step(act(obs))
-        if terminated or truncated:
-            learnt.append(info["learnt_return"])
-            oracle.append(info["oracle_return"])
-            obs, _ = env.reset()
-    return np.asarray(learnt), np.asarray(oracle)
-
-
 def units_map(model, task: str, trajectories: int = 300, seed: int = 12345, oracle: str = "",
               screened=None) -> UnitsMap:
     """R' = gain R + offset fitted by least squares on `trajectories` screened episodes of `task`
@@ -237,7 +224,7 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     data seed 12345 + seed, as the memory check's)."""
     from ..mil.checkpoint import load_checkpoint
     from ..tasks import task_info
-    from .evaluation import EVAL_SEED
+    from .evaluation import EVAL_SEED, random_policy, run_episodes
     from .training import train_agent
     from .wrappers import make_reward_env
 
@@ -249,15 +236,9 @@ def hacking_check(checkpoint: str | Path, task: str, episodes: int = 150, eval_e
     run = train_agent(task, "model", checkpoint, episodes=episodes, seed=seed, progress=False, oracle=oracle,
                       observe=observe)
     env = make_reward_env(task, "model", checkpoint, seed=EVAL_SEED, oracle=oracle, observe=observe)
-    agent_l, agent_o = _episodes(env, eval_episodes, EVAL_SEED,
-                                 lambda obs: run.model.predict(obs, deterministic=True)[0])
-    rng = np.random.default_rng(seed)
-    space = env.action_space
-    if hasattr(space, "n"):
-        act = lambda obs: int(rng.integers(space.n))  # noqa: E731
-    else:
-        act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
-    rand_l, rand_o = _episodes(env, eval_episodes, EVAL_SEED, act)
+    agent_o, agent_l = run_episodes(env, eval_episodes, EVAL_SEED,
+                                    lambda obs: run.model.predict(obs, deterministic=True)[0])
+    rand_o, rand_l = run_episodes(env, eval_episodes, EVAL_SEED, random_policy(env.action_space, seed))
     if units is not None and units.usable:
         agent_l, rand_l = units.oracle_units(agent_l), units.oracle_units(rand_l)
     scale = max(np.abs(agent_o).mean(), np.abs(rand_o).mean(), np.std(rand_o), 1e-9)

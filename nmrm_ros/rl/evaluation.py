@@ -138,28 +138,29 @@ def evaluate_agent(policy, task: str, checkpoint: str | Path | None = None, epis
     if env.observation_space.shape != model.observation_space.shape:
         raise ValueError(f"the policy observes {model.observation_space.shape}, the {reward} env gives "
                          f"{env.observation_space.shape}")
-    returns, learnt = _run(env, episodes, seed, lambda obs: model.predict(obs, deterministic=True)[0])
+    returns, learnt = run_episodes(env, episodes, seed, lambda obs: model.predict(obs, deterministic=True)[0])
+    random_returns, random_learnt = run_episodes(env, episodes, seed, random_policy(env.action_space, seed))
+    return EvaluationResult(returns, random_returns, reward, learnt, random_learnt)
+
+
+def random_policy(space, seed: int):
+    """obs -> a uniformly random action of `space` (Discrete or Box), from a generator of `seed`."""
     rng = np.random.default_rng(seed)
-    space = env.action_space
     if hasattr(space, "n"):
-        act = lambda obs: int(rng.integers(space.n))  # noqa: E731
-    else:
-        act = lambda obs: rng.uniform(space.low, space.high).astype(np.float32)  # noqa: E731
-    random_returns, random_learnt = _run(env, episodes, seed, act)
-    return EvaluationResult(np.asarray(returns), np.asarray(random_returns), reward, np.asarray(learnt),
-                            np.asarray(random_learnt))
+        return lambda obs: int(rng.integers(space.n))
+    return lambda obs: rng.uniform(space.low, space.high).astype(np.float32)
 
 
-def _run(env, episodes: int, seed: int, act) -> tuple[list, list]:
-    """(oracle returns, learnt returns) of `episodes` episodes under `act`."""
+def run_episodes(env, episodes: int, seed: int, act) -> tuple[np.ndarray, np.ndarray]:
+    """(oracle returns, learnt returns) (episodes,) of `episodes` episodes of a reward env
+    (`wrappers.make_reward_env`) under `act` (obs -> action), episode seeds seed, seed + 1, ...;
+    a learnt return the env does not report is NaN."""
     returns, learnt = [], []
     obs, _ = env.reset(seed=seed)
-    for _ in range(episodes):
-        while True:
-            obs, _, terminated, truncated, info = env.step(act(obs))
-            if terminated or truncated:
-                returns.append(info["oracle_return"])
-                learnt.append(info.get("learnt_return", np.nan))
-                obs, _ = env.reset()
-                break
-    return returns, learnt
+    while len(returns) < episodes:
+        obs, _, terminated, truncated, info = env.step(act(obs))
+        if terminated or truncated:
+            returns.append(info["oracle_return"])
+            learnt.append(info.get("learnt_return", np.nan))
+            obs, _ = env.reset()
+    return np.asarray(returns), np.asarray(learnt)
