@@ -477,6 +477,32 @@ def test_a_users_frozen_encoder_makes_a_camera_task_a_vector_task(encoder_module
     assert Run.load(path).model.config.input_size == 6 and stale_data(ds.meta, task) == []
 
 
+def test_a_camera_bag_is_read_through_a_frozen_encoder_named_afterwards(encoder_module, tmp_path):
+    """Episodes recorded with a camera task (pixels as observation images) are read as the same
+    spec with a frozen encoder: each image becomes the encoder's features, as if recorded with it
+    (the same states as the encoder task's own dataset of those episodes); an encoder that does
+    not fit the images is a one-line error."""
+    from nmrm_ros.bags import BagError
+    from nmrm_ros.bags.episodes import load_bag_dataset, write_dataset_bag
+    from nmrm_ros.datasets.return_screening import screen_by_return
+    from nmrm_ros.oracles import make_oracle
+
+    camera = "camera_room:CameraRoom,max_steps=20,image=16x16,privileged=pose"
+    task = f"{camera},encoder=my_encoder:Encoder,encoder_weights={tmp_path / 'enc.pt'}"
+    recorded = screen_by_return(camera, make_oracle(camera, "camera_room:oracle"), 6, pool_size=20, seed=1)
+    bag = write_dataset_bag(recorded, tmp_path / "camera_bag")
+    back, report = load_bag_dataset([bag], task=task)
+    direct = screen_by_return(task, make_oracle(task, "camera_room:oracle"), 6, pool_size=20, seed=1)
+    assert report.episodes_used == 6 and back.task == task and back.meta["encoded_from"] == camera
+    assert back.meta["encoder_sha256"] == hashlib.sha256((tmp_path / "enc.pt").read_bytes()).hexdigest()
+    np.testing.assert_array_equal(back.returns, direct.returns)
+    np.testing.assert_allclose(back.states, direct.states, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(back.final_states, direct.final_states, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(back.privileged, direct.privileged)
+    with pytest.raises(BagError, match="read as .*other.pt"):
+        load_bag_dataset([bag], task=f"{camera},encoder=my_encoder:Encoder,encoder_weights={tmp_path / 'other.pt'}")
+
+
 @pytest.mark.parametrize("tail, message", [
     ("encoder=my_encoder:Nope", "'my_encoder' has no 'Nope'"),
     ("encoder=no_such_module_here:E", "cannot import 'no_such_module_here'"),

@@ -8,7 +8,8 @@ sends them, and the state's other values in the EnvObservation; a frame for peop
 then the dataset's comparisons (`TrajectoryDataset.preferences`) as TrajectoryPreference messages.
 
 `load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations
-(on an image task with the pixels of their observation images put back in front),
+(on an image task with the pixels of their observation images put back in front; for a task spec
+with a frozen encoder, from the episodes of the same spec without it, each image encoded),
 labels from TrajectoryReturn messages (in the same bag, or in labels-only bags given beside it,
 joined by (source, task, episode)), comparisons from TrajectoryPreference messages joined the same
 way (an episode that is only compared has return NaN), oracle ground truth from OracleStep if
@@ -224,6 +225,7 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
         if len(tasks) != 1:
             raise BagError(f"the bags hold episodes of several tasks {sorted(tasks)}; choose one")
         task = tasks.pop()
+    wanted, task = task, _recorded_as(task, tasks)  # a frozen encoder's spec reads its camera task's episodes
     info = task_info(task)
     for key in extra_labels:
         owners = [p for p, obs, *_ in recordings if key in obs]
@@ -254,7 +256,66 @@ def load_bag_dataset(paths: list, task: str | None = None, labeller: str | None 
     if comparisons:
         ds.preferences = _comparisons(comparisons, index, ds, report)
         ds.meta["report"] = str(report)
-    return ds, report
+    return (ds if wanted == task else _encoded(ds, wanted)), report
+
+
+def _recorded_as(task: str, recorded: set) -> str:
+    """The task whose episodes the bags hold for `task`: itself, or, for a task spec with a frozen
+    encoder (`encoder=`) that the bags do not hold, the camera task they do hold that is the same
+    spec without the encoder (its images are then encoded: `_encoded`)."""
+    from dataclasses import replace
+
+    from ..tasks.gym_task import TaskSpecError, is_task_spec, parse_task_spec
+
+    if task in recorded or not is_task_spec(task):
+        return task
+    try:
+        spec = parse_task_spec(task)
+    except TaskSpecError:
+        return task
+    if spec.encoder is None:
+        return task
+    plain = replace(spec, text="", encoder=None, encoder_weights=None)
+    for other in sorted(t for t in recorded if is_task_spec(t)):
+        try:
+            if replace(parse_task_spec(other), text="") == plain:
+                return other
+        except TaskSpecError:
+            continue
+    return task
+
+
+def _encoded(ds: TrajectoryDataset, task: str) -> TrajectoryDataset:
+    """`ds`, episodes of a camera task, as episodes of `task`, the same spec with a frozen encoder:
+    each step's image replaced by the encoder's features (the rest of the state kept), as the
+    task's env would have given them; meta `encoded_from` (the recorded task) and `encoder_sha256`.
+    BagError (one line) if the encoder does not load or run."""
+    from dataclasses import replace
+
+    from ..tasks.frozen_encoder import EncoderError
+    from ..tasks.gym_task import TaskSpecError, encoder_weights_sha256, task_encoder
+
+    shape = task_info(ds.task).image_shape
+    pixels = int(np.prod(shape))
+    try:
+        size = task_info(task).state_size
+        encoder = task_encoder(task, shape)
+
+        def encode(state: np.ndarray) -> np.ndarray:
+            image = np.asarray(state[:pixels]).astype(np.uint8).reshape(shape)
+            return np.concatenate([encoder(image), state[pixels:]])
+
+        states = np.zeros((len(ds), ds.states.shape[1], size), np.float32)
+        for i, n in enumerate(ds.lengths):
+            states[i, :n] = [encode(s) for s in ds.states[i, :n]]
+        final = np.stack([encode(s) for s in ds.final_states]).astype(np.float32)
+    except (EncoderError, TaskSpecError) as exc:
+        raise BagError(f"episodes of {ds.task} read as {task}: {exc}") from None
+    meta = {**ds.meta, "encoded_from": ds.task}
+    weights = encoder_weights_sha256(task)
+    if weights:
+        meta["encoder_sha256"] = weights[1]
+    return replace(ds, task=task, states=states, final_states=final, meta=meta)
 
 
 def _comparisons(comparisons: list, index: dict, ds: TrajectoryDataset, report: BagDatasetReport) -> np.ndarray:
