@@ -31,13 +31,17 @@ def test_graph_learner_sees_the_same_transitions_as_the_wrapper(ros_domain, tmp_
     from step 50: the agent's replay buffer equals the one of the same run through the gymnasium
     wrapper (observations [s_t, h'_{t+1}], actions, rewards r'_t, next observations, dones), so the
     wrapper's rewards are the reward_model node's and learning is the same with or without ROS
-    (in SB3's order: overlap_training false)."""
+    (in SB3's order: overlap_training false). With the oracle labeller beside it, the agent ends
+    checking its model against the labels as `nmrm rl train` does against the oracle: the same
+    figures."""
     out = tmp_path / "policy"
     procs = [
         start("reward_model", mode="model", checkpoint=key_checkpoint, task="key", exit_with_upstream=True),
         start("agent", task="key", policy="learn", seed=3, episodes=2, learning_starts=50, out=out,
-              save_replay_buffer=True, log_every=1, exit_with_upstream=True, overlap_training=False),
-        start("env_sim", task="key", seed=3, episodes=2, wait_for_nodes="[reward_model]"),
+              save_replay_buffer=True, log_every=1, exit_with_upstream=True, overlap_training=False,
+              checkpoint=key_checkpoint),
+        start("labeller_oracle", task="key", exit_with_upstream=True),
+        start("env_sim", task="key", seed=3, episodes=2, wait_for_nodes="[reward_model, labeller_oracle]"),
     ]
     outputs = [finish(p, timeout=120) for p in procs]
     for code, text in outputs:
@@ -45,6 +49,7 @@ def test_graph_learner_sees_the_same_transitions_as_the_wrapper(ros_domain, tmp_
     assert "learner finished 2 episodes" in outputs[1][1]
     meta = json.loads((out / "agent.json").read_text())
     assert meta["episodes_done"] == 2 and meta["reward"] == "model"
+    assert "the model on the agent's last 2 episodes: paid" in outputs[1][1] and "by the labeller" in outputs[1][1]
 
     from stable_baselines3.common.save_util import load_from_pkl
 
@@ -54,6 +59,8 @@ def test_graph_learner_sees_the_same_transitions_as_the_wrapper(ros_domain, tmp_
                       learning_starts=50)
     local = run.model.replay_buffer
     assert graph.pos == local.pos == 200
+    for key in ("episodes", "learnt", "judged", "rmse", "passed"):
+        assert meta["model_check"][key] == pytest.approx(run.model_check.to_dict()[key], rel=1e-6), key
     for field in ("observations", "actions", "rewards", "next_observations", "dones", "timeouts"):
         np.testing.assert_array_equal(getattr(graph, field)[:200], getattr(local, field)[:200], err_msg=field)
     # and the learnt weights after 150 gradient steps

@@ -22,7 +22,10 @@ loop, launch_scripts/loop.launch.yaml) changes what the agent's rewards and hidd
 model being served: once RewardStep.source names it (the reward model has swapped it in, at an
 episode start), the agent relabels its whole replay buffer with it (rewards r'_t and served
 states h'_{t+1} recomputed from the stored states, `nmrm_ros.rl.replay_relabel`) before it acts
-again, and keeps its networks.
+again, and keeps its networks. At the end, when `checkpoint`'s model served the last 50 episodes
+and a labeller judged them, one line says what the model paid them against the labeller's returns
+(`nmrm_ros.rl.model_check`, `nmrm check`'s tolerance; agent.json's `model_check`): a FAIL says the
+agent went where the model is wrong, and the loop is what repairs that.
 
 No action is sent for a final (terminated/truncated) input. A repeated input (same episode and
 step, e.g. a re-published observation) gets the same action again. The action topic is advertised
@@ -80,7 +83,7 @@ PARAMETERS = {
                                     "false: SB3's order, the same transitions and weights as `nmrm rl train`"),
     "checkpoint": Param("", "policy learn: the reward model's checkpoint, settable while running (the "
                             "trainer sets it): the replay buffer is relabelled with it once RewardStep.source "
-                            "names it ('' = never relabel)"),
+                            "names it ('' = never relabel), and the run ends checking it against the labels"),
 }
 
 
@@ -256,7 +259,7 @@ class Learner:
         self.keeper = None  # the PolicyKeeper (kept_policy): policy.zip is its best snapshot
         self.finished = False
         self.thread: threading.Thread | None = None
-        self.records: list = []      # (episode id, learnt return, steps, wall time)
+        self.records: list = []      # (episode id, learnt return, steps, wall time, q, who served it)
         self.labels: dict = {}       # (robot, episode id) -> oracle return (TrajectoryReturn)
         self.lock = threading.Lock()
         self.done = threading.Event()
@@ -433,7 +436,8 @@ class Learner:
 
     def on_episode(self, rec, info: dict) -> None:
         key = (info.get("robot", 0), info.get("episode_id", -1))
-        self.records.append((key, rec.learnt_return, rec.steps, time.monotonic() - self.t0, rec.q))
+        self.records.append((key, rec.learnt_return, rec.steps, time.monotonic() - self.t0, rec.q,
+                             str(info.get("source", ""))))
         n = len(self.records)
         if n % self.log_every == 0 or n == self.episodes:
             last = self.records[-self.log_every:]
@@ -477,7 +481,7 @@ class Learner:
         fleet = len(self.node.robots) > 1
         curve = LearningCurve([EpisodeRecord(n if fleet else key[1], labels.get(key, float("nan")), g, steps, wall,
                                              q=dict(q))
-                               for n, (key, g, steps, wall, q) in enumerate(self.records)])
+                               for n, (key, g, steps, wall, q, _) in enumerate(self.records)])
         report = None
         if self.keeper is not None:  # the labeller's judgements arrive after their episodes
             for n, (key, *_) in enumerate(self.records):
@@ -485,17 +489,43 @@ class Learner:
             from ..rl.training import end_of_run
 
             _, report = end_of_run(curve, self.model, self.keeper)
+        model_check = self.model_check(labels) if self.finished else None
         save_agent(self.model, curve, self.out, {
             "task": self.task, "algorithm": self.algo, "seed": self.seed, "reward_source": self.source,
             "reward": ("oracle" if self.use_hidden else "oracle-no-hidden") if self.source == "oracle" else "model",
             "episodes": self.episodes, "episodes_done": len(self.records), "observe_hidden": self.use_hidden,
-            "outcome": self.outcome, "config": self.cfg, "robots": self.node.robots},
+            "outcome": self.outcome, "config": self.cfg, "robots": self.node.robots,
+            **({"model_check": model_check.to_dict()} if model_check else {})},
             keeper=self.keeper, collapse=report)
         if self.save_buffer:
             self.model.save_replay_buffer(self.out / "replay_buffer.pkl")
         self.node.get_logger().info(f"saved {self.out}/policy.zip after {len(self.records)} episode(s)")
         if self.finished and report is not None:
             self.node.get_logger().info(report.summary())
+        if model_check is not None:
+            line = model_check.summary().replace("by the oracle", "by the labeller")
+            if model_check.passed:
+                self.node.get_logger().info(line)
+            else:  # the repair: label the agent's own episodes and retrain (docs/guide/loop.md)
+                self.node.get_logger().warning(f"{line}; label its own episodes and retrain: "
+                                               f"launch_scripts/loop.launch.yaml, or nmrm loop")
+
+    def model_check(self, labels: dict):
+        """The reward model against the labeller's returns on the agent's last 50 episodes
+        (`rl.model_check`: is the agent where the model is wrong?), when every one of them was
+        served by the model of `checkpoint` (RewardStep.source names it, as the reward_model node
+        does by default) and labelled; else None (no checkpoint given, the oracle served, another
+        model, a label missing)."""
+        if not self.checkpoint or self.source == "oracle":
+            return None
+        from pathlib import Path
+
+        from ..rl.model_check import model_check_of_run
+
+        last = self.records[-50:]
+        if not last or any(r[5] != Path(self.checkpoint).with_suffix("").name or r[0] not in labels for r in last):
+            return None
+        return model_check_of_run(self.checkpoint, [r[1] for r in last], [labels[r[0]] for r in last])
 
 
 def main(args=None) -> int:

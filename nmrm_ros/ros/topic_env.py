@@ -143,7 +143,7 @@ class TopicEnv(gym.Env):
                 self._return += reward
                 return self._last_obs, reward, False, True, {
                     "broken": True, "episode_id": self.episode, "robot": self.robot, "learnt_reward": reward,
-                    "learnt_return": self._return}
+                    "learnt_return": self._return, "source": self.source}
             self.skipped += 1
         reward = self._pending
         self._return += reward
@@ -154,5 +154,6 @@ class TopicEnv(gym.Env):
         info = {"episode_id": self.episode, "robot": self.robot, "learnt_reward": reward}
         if msg.terminated or msg.truncated:
             info["learnt_return"] = self._return
+            info["source"] = self.source  # who served the episode (a model is swapped at step 0 only)
             self.episodes_done += 1
         return self._last_obs, reward, bool(msg.terminated), bool(msg.truncated), info
