@@ -140,7 +140,8 @@ def test_the_robot_spec_takes_cameras_and_privileged_inputs():
 def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_state(ros_domain, tmp_path):
     """observation_bridge (a real process) with a CompressedImage camera (PNG 64x64, resized to
     32x32) and a privileged PoseStamped: key_pixels observations whose state is the resized frame
-    (sent as the observation image beside them) and whose privileged state is the pose; a spec whose cameras do not make the task's image is a
+    (sent as the observation image beside them) and whose privileged state is the pose; the
+    recorder's bag reads back the same states; a spec whose cameras do not make the task's image is a
     one-line error."""
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import qos_profile_sensor_data
@@ -152,8 +153,9 @@ def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_stat
     frame = _picture(64, 64)
     expected = image_reader("sensor_msgs/msg/CompressedImage", (32, 32))(_compressed(frame)).reshape(-1)
     capture = Capture()
+    recorder = start("recorder", output=str(tmp_path / "bag"), exit_with_upstream=True)
     bridge = start("observation_bridge", spec=tmp_path / "camera.yaml", task="key_pixels", episodes=1,
-                   wait_for_subscribers=1)
+                   wait_for_subscribers=2)
     try:
         camera = capture.node.create_publisher(CompressedImage, "/camera/compressed", qos_profile_sensor_data)
         mocap = capture.node.create_publisher(PoseStamped, "/mocap", 10)
@@ -166,6 +168,7 @@ def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_stat
         if bridge.poll() is None:
             bridge.send_signal(signal.SIGINT)
         capture.close()
+        recorded = finish(recorder)
     # the pixels travel as a PNG on nmrm/observation_image, the observation's state is what follows them
     assert all(len(m.state) == 0 for m in capture.msgs["observation"])
     assert sorted(parse_frame_id(m.header.frame_id) for m in capture.msgs["observation_image"]) == \
@@ -176,6 +179,12 @@ def test_a_camera_robot_makes_pixel_task_observations_with_their_privileged_stat
         assert m.task == "key_pixels" and len(m.state) == 32 * 32 * 3
         np.testing.assert_array_equal(np.asarray(m.state), expected)
         assert list(m.privileged) == pytest.approx([0.25, 0.75])
+    from nmrm_ros.interpret.episode_view import read_episodes
+
+    assert recorded[0] == 0, recorded[1]
+    episode = read_episodes(tmp_path / "bag")[("", 0)]
+    np.testing.assert_array_equal(episode.states, np.stack([expected] * 5).astype(np.float32))
+    np.testing.assert_allclose(episode.privileged, [[0.25, 0.75]] * 5)
     # the key task has no image state: a spec with a camera is refused at start, in one line
     bridge = start("observation_bridge", spec=tmp_path / "camera.yaml", task="key")
     code, out = finish(bridge)
