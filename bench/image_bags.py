@@ -4,8 +4,8 @@
 
 Writes the screened episodes of data seed --seed of Key, as the state task and as the pixel task
 (key_pixels: 32 x 32 x 3 images, the position privileged), with `write_dataset_bag` (what `nmrm
-dataset generate` and the recorder write: the pixels as a PNG on /nmrm/observation_image beside
-each EnvObservation, a 4x-enlarged frame for people on /nmrm/frame), and prints per task: steps,
+dataset generate` writes: the pixels as a PNG on /nmrm/observation_image beside each
+EnvObservation, as the recorder records env_sim), and prints per task: steps,
 the bag's size per 1000 steps (MCAP files, zstd-compressed chunks), the writing rate (steps/s,
 dataset -> bag, one thread), and the serialized bytes a step of each topic (what a subscriber
 receives on the graph: uncompressed).

@@ -4,7 +4,8 @@
 would record it: per episode, EnvObservation steps 0..L (the last one truncated/terminated),
 AgentAction steps 0..L-1, OracleStep steps 0..L-1, and one TrajectoryReturn from `oracle/<task>`
 (on an image task each observation's pixels as its PNG on `/nmrm/observation_image`, as env_sim
-sends them, and the state's other values in the EnvObservation; a frame for people on `/nmrm/frame`);
+sends them, and the state's other values in the EnvObservation: the labelling page and the LeRobot
+export show people those images);
 then the dataset's comparisons (`TrajectoryDataset.preferences`) as TrajectoryPreference messages.
 
 `load_bag_dataset` builds MIL bags back from one or more bags: instances from the observations
@@ -46,7 +47,7 @@ T_ACT = "nmrm_msgs/msg/AgentAction"
 T_RET = "nmrm_msgs/msg/TrajectoryReturn"
 T_ORC = "nmrm_msgs/msg/OracleStep"
 T_PREF = "nmrm_msgs/msg/TrajectoryPreference"
-FRAME_TOPIC, FRAME_TYPE = "/nmrm/frame", "sensor_msgs/msg/CompressedImage"
+FRAME_TYPE = "sensor_msgs/msg/CompressedImage"  # an observation image's (bags.observation_images)
 TOPIC = {t: topic for topic, t in TOPIC_TYPES.items()}
 #: log time of the first message of generated bags (2025-01-01T00:00:00Z), and the step period
 BASE_TIME_NS = 1_735_689_600 * 10**9
@@ -91,11 +92,11 @@ def write_dataset_bag(ds: TrajectoryDataset, path: str | Path, labeller: str | N
 def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle, name, returns,
                     preference_labeller) -> None:
     from ..tasks import task_info
-    from ..tasks.frames import encode_frame, frame_id, image_state_frame
+    from ..tasks.frames import frame_id
     from ..tasks.image_states import IMAGE_STATE_FORMAT, encode_image_state, vector_part
 
     t = start_ns
-    image_shape = task_info(ds.task).image_shape  # an image state: its frame for people, as env_sim renders it
+    image_shape = task_info(ds.task).image_shape  # an image state: its pixels as observation images
     with BagWriter(path, file_name=f"{name}_0.mcap") as bag:
         for i in range(len(ds)):
             e = first_episode + i
@@ -112,11 +113,6 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                     "header": stamped_header(t, ds.task), "task": ds.task, "episode": e, "step": step,
                     "state": [float(x) for x in (vector_part(state, image_shape) if image_shape else state)],
                     "terminated": False, "truncated": final, "privileged": [float(x) for x in privileged]}, t)
-                if image_shape:
-                    frame = image_state_frame(state, image_shape)
-                    bag.write_dict(FRAME_TOPIC, FRAME_TYPE, {
-                        "header": stamped_header(t, frame_id(e, step)), "format": "png",
-                        "data": encode_frame(frame, width=frame.shape[1], fmt="png")}, t)  # its own size
                 if not final:
                     if ds.actions is not None:
                         a = np.asarray(ds.actions[i, step], dtype=np.float64).reshape(-1)

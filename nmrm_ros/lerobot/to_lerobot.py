@@ -166,6 +166,23 @@ def _decode(fmt_data: tuple, where: str) -> np.ndarray:
         raise LeRobotError(f"{where}: a rendered frame that is not an image ({exc})") from None
 
 
+def _frames_of_images(chosen: list, lengths: list, image_shape: tuple) -> bool:
+    """On an image task, an episode without rendered frames gets the images the model saw as its
+    frames (each pixel a block, as the labelling page shows them: `frames.image_state_frame`);
+    whether any did."""
+    if not image_shape:
+        return False
+    from ..tasks.frames import encode_frame, image_state_frame
+
+    drawn = False
+    for ep, n in zip(chosen, lengths):
+        if not ep.frames:
+            shown = [image_state_frame(ep.states[t][0], image_shape) for t in range(n)]
+            ep.frames = {t: ("png", encode_frame(f, width=f.shape[1], fmt="png")) for t, f in enumerate(shown)}
+            drawn = True
+    return drawn
+
+
 def _fps(episodes: list) -> int:
     """Steps per second of the recording: the median time between an episode's observations."""
     gaps = []
@@ -233,9 +250,10 @@ def export_lerobot(bags: list, out: str | Path, checkpoint: str | Path | None = 
         raise LeRobotError("the episodes' actions are not all of one size")
     if not with_actions and any(ep.actions for ep in chosen):
         report.skipped["actions_of_some_steps_missing (no action column)"] += 1
+    drawn = _frames_of_images(chosen, lengths, info.image_shape)
     with_frames = all(all(t in ep.frames for t in range(n)) for ep, n in zip(chosen, lengths))
     some_frames = any(ep.frames for ep in chosen)
-    report.camera = (f"{CAMERA} ({codec} video)" if with_frames else
+    report.camera = (f"{CAMERA} ({codec} video{', of the observation images' if drawn else ''})" if with_frames else
                      "none: some exported steps have no rendered frame" if some_frames else "none in the bags")
     if model is not None and (model.task != task or model.input_size != info.state_size):
         raise LeRobotError(f"checkpoint {checkpoint} is a model of task {model.task!r} (states of {model.input_size}); "
