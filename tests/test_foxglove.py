@@ -116,6 +116,7 @@ def test_the_layout_shows_only_topics_the_graph_publishes():
         named |= set(panel.get("topics", {}))
         named |= {p["value"].split(".")[0] for p in panel.get("paths", [])}
         named |= {panel[k] for k in ("topicToRender", "topicPath") if k in panel}
+        named |= {panel["imageMode"]["imageTopic"]} if "imageTopic" in panel.get("imageMode", {}) else set()
     panels = set(layout["configById"])
     assert {"3D!nmrm_arena", "Plot!nmrm_reward"} <= panels
     assert named and named <= set(DEFAULT_TOPICS), named - set(DEFAULT_TOPICS)
