@@ -37,7 +37,7 @@ import numpy as np
 from ..datasets.trajectories import TrajectoryDataset
 from ..tasks import task_info
 from .label_records import comparison_record, label_record
-from .observation_images import IMAGE_TOPIC, BagImages
+from .observation_images import IMAGE_TOPIC, IMAGE_TYPE, BagImages
 from .reader import BagError, iter_decoded
 from .schemas import TOPIC_TYPES, split_topic
 from .writer import BagWriter
@@ -47,7 +47,6 @@ T_ACT = "nmrm_msgs/msg/AgentAction"
 T_RET = "nmrm_msgs/msg/TrajectoryReturn"
 T_ORC = "nmrm_msgs/msg/OracleStep"
 T_PREF = "nmrm_msgs/msg/TrajectoryPreference"
-FRAME_TYPE = "sensor_msgs/msg/CompressedImage"  # an observation image's (bags.observation_images)
 TOPIC = {t: topic for topic, t in TOPIC_TYPES.items()}
 #: log time of the first message of generated bags (2025-01-01T00:00:00Z), and the step period
 BASE_TIME_NS = 1_735_689_600 * 10**9
@@ -106,7 +105,7 @@ def _write_episodes(ds, path, labeller, start_ns, first_episode, include_oracle,
                 state = ds.final_states[i] if final else ds.states[i, step]
                 privileged = () if ds.privileged is None or final else ds.privileged[i, step]
                 if image_shape:  # the pixels as the observation image, as env_sim sends them
-                    bag.write_dict(IMAGE_TOPIC, FRAME_TYPE, {
+                    bag.write_dict(IMAGE_TOPIC, IMAGE_TYPE, {
                         "header": stamped_header(t, frame_id(e, step)), "format": IMAGE_STATE_FORMAT,
                         "data": encode_image_state(state, image_shape)}, t)
                 bag.write_dict(TOPIC[T_OBS], T_OBS, {

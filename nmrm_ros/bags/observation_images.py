@@ -14,10 +14,9 @@ import numpy as np
 
 from ..tasks.frames import parse_frame_id
 from ..tasks.image_states import decode_image_state
+from .schemas import IMAGE_TOPIC, TOPIC_TYPES
 
-#: the topic of observation images (in any namespace), sensor_msgs/msg/CompressedImage
-IMAGE_TOPIC = "/nmrm/observation_image"
-IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
+IMAGE_TYPE = TOPIC_TYPES[IMAGE_TOPIC]
 
 
 class BagImages:

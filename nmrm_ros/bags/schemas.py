@@ -20,6 +20,8 @@ NMRM_TYPES = ("EnvObservation", "AgentAction", "RewardStep", "TrajectoryReturn",
 #: standard ROS 2 types our graph publishes too: their .msg text (without the Header's definition)
 STANDARD_TYPES = {"sensor_msgs/msg/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n"}
 
+#: an image task's pixels (`tasks.image_states`), beside the observation topic of its graph
+IMAGE_TOPIC = "/nmrm/observation_image"
 #: Default topic -> type of the nmrm graph (same names as nmrm_ros.ros.topics, absolute).
 TOPIC_TYPES = {
     "/nmrm/observation": "nmrm_msgs/msg/EnvObservation",
@@ -29,7 +31,7 @@ TOPIC_TYPES = {
     "/nmrm/oracle_step": "nmrm_msgs/msg/OracleStep",
     "/nmrm/trajectory_preference": "nmrm_msgs/msg/TrajectoryPreference",
     "/nmrm/frame": "sensor_msgs/msg/CompressedImage",  # env_sim render:=true (nmrm_ros.tasks.frames)
-    "/nmrm/observation_image": "sensor_msgs/msg/CompressedImage",  # an image task's pixels (tasks.image_states)
+    IMAGE_TOPIC: "sensor_msgs/msg/CompressedImage",
 }
 
 
@@ -41,7 +43,7 @@ def with_observation_images(topics: list, available=None) -> list:
     out = list(topics)
     for t in topics:
         for step in ("/nmrm/observation", "/nmrm/reward_step"):
-            image = t[: -len(step)] + "/nmrm/observation_image"
+            image = t[: -len(step)] + IMAGE_TOPIC
             if t.endswith(step) and image not in out and (available is None or image in available):
                 out.append(image)
     return out

@@ -45,7 +45,7 @@ class ImagePairing:
                  capacity: int = 256, on_error: Callable | None = None) -> None:
         self.image_shape = tuple(int(v) for v in image_shape)
         self.pixels = math.prod(self.image_shape)
-        self.state_size, self.vector_size = int(state_size), int(state_size) - self.pixels
+        self.vector_size = int(state_size) - self.pixels
         self.deliver, self.fields, self.capacity, self.on_error = deliver, tuple(fields), int(capacity), on_error
         self.images: OrderedDict = OrderedDict()   # (e, t) -> pixels as float32 (H*W*C,)
         self.waiting: OrderedDict = OrderedDict()  # (e, t) -> [messages waiting for that image]
