@@ -99,6 +99,17 @@ def test_robot_spec_mistakes_name_the_key(text, message):
         parse_robot_spec(text)
 
 
+def test_both_bridges_refuse_a_missing_or_wrong_spec_file_in_one_line(tmp_path):
+    from nmrm_ros.ros.node_main import NodeError, require_robot_spec
+
+    (tmp_path / "list.yaml").write_text("[1, 2]")
+    for path, message in [("", "spec is required"), (str(tmp_path / "none.yaml"), "no robot spec file"),
+                          (str(tmp_path), "no robot spec file"), (str(tmp_path / "list.yaml"), "must be a mapping")]:
+        with pytest.raises(NodeError, match=message) as err:
+            require_robot_spec(path)
+        assert "\n" not in str(err.value)
+
+
 def test_the_action_table_and_the_limits():
     spec = parse_robot_spec(SPEC)
     assert spec.twist([1.0]) == {"angular.z": 1.0}

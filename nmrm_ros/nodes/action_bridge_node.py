@@ -19,7 +19,7 @@ import time
 from nmrm_msgs.msg import AgentAction, EnvObservation
 
 from ..ros.node_base import NmrmNode
-from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param
+from ..ros.node_main import EXIT_WITH_UPSTREAM, NodeError, Param, require_robot_spec
 from ..ros.topics import ACTION, OBSERVATION, STEP_QOS
 
 PARAMETERS = {
@@ -40,14 +40,7 @@ class ActionBridgeNode(NmrmNode):
         p = self.params
         from geometry_msgs.msg import Twist, TwistStamped
 
-        from ..ros.robot_spec import load_robot_spec
-
-        if not p["spec"]:
-            raise NodeError("spec is required: a robot spec YAML file (see nmrm_ros.ros.robot_spec)")
-        try:
-            self.spec = load_robot_spec(p["spec"])
-        except ValueError as exc:
-            raise NodeError(str(exc)) from None
+        self.spec = require_robot_spec(p["spec"])
         if not self.spec.discrete and not self.spec.continuous_fields:
             raise NodeError(f"{p['spec']}: the action section maps no action (give discrete: or continuous:)")
         self.frame_id = str(p["frame_id"])

@@ -34,7 +34,7 @@ from nmrm_msgs.msg import EnvObservation
 
 from ..ros.messages import to_float_list
 from ..ros.node_base import NmrmNode
-from ..ros.node_main import NodeError, Param, require_task
+from ..ros.node_main import NodeError, Param, require_robot_spec, require_task
 from ..ros.topics import ACTION, OBSERVATION, OBSERVATION_IMAGE, STEP_QOS
 
 PARAMETERS = {
@@ -63,16 +63,10 @@ class ObservationBridgeNode(NmrmNode):
         from std_srvs.srv import Empty, Trigger
 
         from ..ros.field_paths import message_class
-        from ..ros.robot_spec import load_robot_spec
 
-        if not p["spec"]:
-            raise NodeError("spec is required: a robot spec YAML file (see nmrm_ros.ros.robot_spec)")
-        if not p["task"]:
+        if p["spec"] and not p["task"]:
             raise NodeError("task is required: the task whose observations the robot makes")
-        try:
-            self.spec = load_robot_spec(p["spec"])
-        except ValueError as exc:
-            raise NodeError(str(exc)) from None
+        self.spec = require_robot_spec(p["spec"])
         self.info = require_task(p["task"])
         self.task = p["task"]
         self.expected = self.info.state_size

@@ -382,6 +382,18 @@ def require_task(task: str):
         raise NodeError(str(exc)) from None
 
 
+def require_robot_spec(path: str):
+    """The RobotSpec of the robot spec YAML `path`, or a NodeError (one line) saying why not."""
+    from .robot_spec import load_robot_spec
+
+    if not path:
+        raise NodeError("spec is required: a robot spec YAML file (see nmrm_ros.ros.robot_spec)")
+    try:
+        return load_robot_spec(path)
+    except ValueError as exc:
+        raise NodeError(str(exc)) from None
+
+
 ORACLE = Param("", "your own oracle function, <module>:<function> or <file.py>:<function> "
                   "(nmrm_ros.oracles.function_oracle; '' = the task's own)")
 
