@@ -290,6 +290,27 @@ def test_an_agent_that_sees_the_image_reads_it_with_a_cnn(key_data, tmp_path):
         ImageStateExtractor(gym.spaces.Box(0, 1, (10,)), (32, 32, 3))
 
 
+@pytest.mark.parametrize("arch", ARCHITECTURES)
+def test_pixels_stored_in_the_encoders_order_train_exactly_as_the_states_hold_them(arch, key_data):
+    """BagTensors(ds, model.patch_layout) keeps the pixels patch after patch (no strided copy a
+    step): the same outputs and gradients, bit for bit, as the states as they are."""
+    _, px = key_data
+    ens = init_ensemble(model_config(arch, "key_pixels", px.state_size, dropout=0.1), [0, 1, 2])
+    index = torch.as_tensor(np.random.default_rng(0).integers(0, len(px), (3, 5)))
+    results = []
+    for bags in (BagTensors(px), BagTensors(px, ens.patch_layout)):
+        x, lengths, _ = bags.batch(index)
+        assert x.shape == (3, 5, int(lengths.max()), px.state_size) and x.dtype == torch.uint8
+        ens.zero_grad()
+        torch.manual_seed(0)  # the same dropout masks
+        out = ens.train()(x, lengths, patch_ordered=bags.patch_ordered)
+        out.returns.sum().backward()
+        results.append((out.rewards.detach(), [p.grad.clone() for p in ens.parameters()]))
+    assert not BagTensors(px).patch_ordered and BagTensors(px, ens.patch_layout).patch_ordered
+    assert torch.equal(results[0][0], results[1][0])
+    assert all(torch.equal(a, b) for a, b in zip(results[0][1], results[1][1]))
+
+
 def test_two_losses_of_a_pixel_ensemble_before_one_backward(key_data):
     """feedback both: a return batch and a comparison batch, then one backward. The second
     forward must not overwrite the pixels the first one's backward reads."""

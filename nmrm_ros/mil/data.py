@@ -46,10 +46,19 @@ EVAL_VALUES = 2 ** 25
 
 class BagTensors:
     """A dataset's bags as tensors: x (n, L, d) float32 (uint8 as stored for an image task's
-    pixels), lengths (n,), returns (n,), rewards (n, L)."""
+    pixels), lengths (n,), returns (n,), rewards (n, L).
 
-    def __init__(self, ds: TrajectoryDataset) -> None:
+    patch_layout: a model's (image_shape, patch) (`MILEnsemble.patch_layout`): the image values
+    of every state are stored, once, in the order its image encoder reads them (patch after
+    patch, `image_encoder.patches`), so that a batch's pixels reach the encoder without a strided
+    copy a step (`patch_ordered`: give the model `patch_ordered=True` with them); None: the
+    states as they are."""
+
+    def __init__(self, ds: TrajectoryDataset, patch_layout: tuple | None = None) -> None:
         states = ds.states if ds.states.dtype == np.uint8 else np.ascontiguousarray(ds.states, dtype=np.float32)
+        self.patch_ordered = patch_layout is not None
+        if self.patch_ordered:
+            states = _in_patch_order(torch.as_tensor(states), *patch_layout)
         self.x = torch.as_tensor(states)
         self.lengths = torch.as_tensor(ds.lengths, dtype=torch.int64)
         self.returns = torch.as_tensor(ds.returns, dtype=torch.float32)
@@ -68,7 +77,26 @@ class BagTensors:
         """x (float32, or uint8 pixels: the models' image encoder reads them as they are),
         lengths, returns of the bags at `index`, trimmed to the batch's longest bag; the returns
         are those of the bags at `label_index` if given (swapped labels)."""
+        index = torch.as_tensor(index, dtype=torch.int64)
         lengths = self.lengths[index]
         horizon = int(lengths.max())
         labels = self.returns[index if label_index is None else label_index]
-        return self.x[index, :horizon], lengths, labels
+        # index_select copies whole rows (~6x faster than x[index] on uint8 pixels)
+        x = torch.index_select(self.x[:, :horizon], 0, index.reshape(-1))
+        return x.view(*index.shape, *x.shape[1:]), lengths, labels
+
+
+def _in_patch_order(states: torch.Tensor, image_shape: tuple, patch: int, rows: int = 256) -> torch.Tensor:
+    """A copy of states (n, L, d) whose image values (the first H*W*C) are in the order
+    `image_encoder.patches` reads them, the rest as they are; `rows` bags at a time."""
+    from .image_encoder import patch_grid
+
+    values = int(np.prod(image_shape))
+    out = torch.empty_like(states)
+    for start in range(0, len(states), rows):
+        part = states[start:start + rows]
+        n, length = part.shape[:2]
+        out[start:start + rows, :, :values].view(n, length, -1).copy_(
+            patch_grid(part[..., :values], image_shape, patch).reshape(n, length, -1))
+        out[start:start + rows, :, values:] = part[..., values:]
+    return out

@@ -69,6 +69,7 @@ class MILEnsemble(nn.Module):
         self.dropout_masks: MemberDropout | None = None
         self._step_masks = None  # this forward's masks, one per activation in order
         self._computed = None  # this forward's members (None: all)
+        self._patch_ordered = False  # this forward's pixels come in the encoder's order (BagTensors)
         self._pixels = torch.empty(0)  # the image encoder's patch buffer (`_encode`)
         self._pixels_held = 0  # forwards whose backward (which reads the buffer) has not run yet
 
@@ -180,7 +181,10 @@ class MILEnsemble(nn.Module):
             if self._pixels.numel() < size:
                 self._pixels = torch.empty(size)
             buf = self._pixels[:size]
-        buf.view(K, N, h // p, w // p, p, p, c).copy_(patch_grid(x[..., :cfg.image_values], cfg.image_shape, p))
+        if self._patch_ordered:  # stored in the encoder's order (BagTensors): a plain copy
+            buf.view(K, N, -1).copy_(x[..., :cfg.image_values])
+        else:
+            buf.view(K, N, h // p, w // p, p, p, c).copy_(patch_grid(x[..., :cfg.image_values], cfg.image_shape, p))
         flat = buf.view(K, N * (h // p) * (w // p), p * p * c)
         weight, bias = pixel_weights(self._p("encoder__weight"), self._p("encoder__bias"))
         if grad:
@@ -244,15 +248,24 @@ class MILEnsemble(nn.Module):
         z = torch.tanh(x + torch.baddbmm(p["out__bias"].unsqueeze(1), a, p["out__weight"].transpose(1, 2)))
         return z.view(K, B, T, k)
 
-    def forward(self, x: torch.Tensor, lengths: torch.Tensor, members: torch.Tensor | None = None) -> MILOutput:
+    @property
+    def patch_layout(self) -> tuple | None:
+        """(image_shape, patch) of the image encoder (None without an image): `BagTensors(ds,
+        model.patch_layout)` stores the pixels in the order the encoder reads them, once."""
+        cfg = self.config
+        return (tuple(cfg.image_shape), int(cfg.patch)) if cfg.image_shape else None
+
+    def forward(self, x: torch.Tensor, lengths: torch.Tensor, members: torch.Tensor | None = None,
+                patch_ordered: bool = False) -> MILOutput:
         """members: indices (K',) of the members to compute (None: all); the others cost nothing
-        (training leaves out the members that are done)."""
+        (training leaves out the members that are done). patch_ordered: the image values of x are
+        in the encoder's order (a `BagTensors` of `patch_layout`), not as the state holds them."""
         K = self.members if members is None else len(members)
         if x.dim() == 3:
             x = x.unsqueeze(0).expand(K, *x.shape)
         if lengths.dim() == 1:
             lengths = lengths.unsqueeze(0).expand(K, -1)
-        self._step_masks, self._computed = None, members
+        self._step_masks, self._computed, self._patch_ordered = None, members, bool(patch_ordered)
         try:
             if self.training and self.dropout_masks is not None:
                 # each member's own longest bag: its dropout masks cover only its own instances
@@ -260,6 +273,7 @@ class MILEnsemble(nn.Module):
             return self._forward(x, lengths)
         finally:
             self._step_masks = self._computed = None  # valid for this forward only
+            self._patch_ordered = False
 
     def _forward(self, x: torch.Tensor, lengths: torch.Tensor) -> MILOutput:
         """forward() of (K, B, T, d) instances and (K, B) lengths: features, [LSTM,] head, then

@@ -35,7 +35,7 @@ def batched_outputs(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
     """(output, lengths) of `model` on the bags of `ds` in order, batch by batch, in eval mode and
     without gradients (the model's mode restored afterwards): MILOutput returns (K, B), rewards
     (K, B, T) zero beyond each of the lengths (B,)."""
-    bags = BagTensors(ds)
+    bags = BagTensors(ds, model.patch_layout)
     was_training = model.training
     model.eval()
     try:
@@ -43,7 +43,7 @@ def batched_outputs(model: MILEnsemble, ds: TrajectoryDataset, batch_size: int =
         for start in range(0, len(bags), rows):
             x, lengths, _ = bags.batch(torch.arange(start, min(start + rows, len(bags))))
             with torch.no_grad():  # not around the yield: grad mode would leak into the caller
-                out = model(x, lengths)
+                out = model(x, lengths, patch_ordered=bags.patch_ordered)
             yield out, lengths
     finally:
         model.train(was_training)
@@ -55,7 +55,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
     prediction (returns and rewards averaged over the members); with K > 1 members "return_std"
     adds the mean over bags of the members' return std."""
     model = as_ensemble(model).eval()
-    bags = BagTensors(ds)
+    bags = BagTensors(ds, model.patch_layout)
     batch_size = bags.eval_rows(batch_size, model.members)
     ret_se, rew_se, steps, spread = 0.0, 0.0, 0, 0.0
     predicted, step_pred, step_true, step_index = [], [], [], []
@@ -64,7 +64,7 @@ def evaluate(model: MILRewardModel | MILEnsemble, ds: TrajectoryDataset, batch_s
     for start in range(0, len(bags), batch_size):
         index = torch.arange(start, min(start + batch_size, len(bags)))
         x, lengths, returns = bags.batch(index)
-        out = model(x, lengths)
+        out = model(x, lengths, patch_ordered=bags.patch_ordered)
         spread += float(out.returns.std(0, unbiased=False).sum())
         pred_returns, pred_rewards = out.returns.mean(0), out.rewards.mean(0)
         predicted.append(pred_returns.double().numpy())

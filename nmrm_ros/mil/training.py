@@ -315,7 +315,7 @@ def return_mse(model: MILRewardModel | MILEnsemble, bags: BagTensors, batch_size
         part = slice(start, start + batch_size)
         x, lengths, returns = bags.batch(index[..., part],
                                          None if label_index is None else label_index[..., part])
-        err = model(x, lengths).returns - returns
+        err = model(x, lengths, patch_ordered=bags.patch_ordered).returns - returns
         if scaled:
             err = err / model.return_scale
         total += (err.double() ** 2).sum(-1)
@@ -457,7 +457,7 @@ def _val_preference_loss(ens: MILEnsemble, bags: BagTensors, prefs: torch.Tensor
             pick = prefs[r[start:start + pairs]]
             ab = torch.cat([pick[:, 0], pick[:, 1]]).long()
             x, lengths, _ = bags.batch(ab)
-            returns = ens(x, lengths).returns[m]
+            returns = ens(x, lengths, patch_ordered=bags.patch_ordered).returns[m]
             half = len(pick)
             total += float(preference_loss(returns[:half], returns[half:], pick[:, 2].float(), scale)) * half
         out[m] = total / max(len(r), 1)
@@ -527,7 +527,7 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
     if fresh:
         initialise(ens, cfg)
 
-    bags = BagTensors(ds)
+    bags = BagTensors(ds, ens.patch_layout)  # pixels stored in the encoder's order, once
     bags.returns = torch.nan_to_num(bags.returns)  # unlabelled (NaN) bags never reach the MSE
     generators = [torch.Generator().manual_seed(int(s)) for s in seeds]
     if use_returns and cfg.feedback == "both" and not labelled.all():  # only the return-labelled ones
@@ -594,13 +594,13 @@ def train_ensemble(ens: MILEnsemble, ds: TrajectoryDataset, splits: list, cfg: T
             if use_returns:
                 at = _positions(step, cfg.batch_size, n_train, steps_returns == steps_per_epoch)
                 x, lengths, returns = bags.batch(order[rows][:, at], label_order[rows][:, at])
-                member_loss = member_loss + _per_member(return_loss(ens(x, lengths, computed), returns, cfg),
+                member_loss = member_loss + _per_member(return_loss(ens(x, lengths, computed, bags.patch_ordered), returns, cfg),
                                                         computed, K)
             if use_prefs:
                 pick = prefs[pair_order[rows][:, _positions(step, cfg.batch_size, n_pairs, steps_prefs == steps_per_epoch)]]
                 half = pick.shape[1]
                 x, lengths, _ = bags.batch(torch.cat([pick[..., 0], pick[..., 1]], dim=1).long())
-                out = ens(x, lengths, computed)
+                out = ens(x, lengths, computed, bags.patch_ordered)
                 bt = preference_loss(out.returns[:, :half], out.returns[:, half:], pick[..., 2].float(), scale)
                 member_loss = member_loss + _per_member(
                     cfg.preference_weight * bt + _l1(out, cfg) if use_returns else bt, computed, K)
