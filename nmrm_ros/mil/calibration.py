@@ -110,7 +110,6 @@ def calibrate(model: MILEnsemble, calibration: Calibration) -> MILEnsemble:
     if not model._head:
         raise CalibrationError("the model has no reward head to calibrate")
     out = copy.deepcopy(model)
-    out._pixels = torch.empty(0)  # the image encoder's patch buffer: scratch, not a copy to keep
     last = out._head[-1]
     weight = out.params[_key(f"head.{last}.weight")]  # (K, 1, in)
     bias = out.params[_key(f"head.{last}.bias")]  # (K, 1)

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from .dropout import MemberDropout, dropout_mask, relu_dropout
-from .image_encoder import PatchLayer, patch_grid, pixel_weights
+from .image_encoder import PatchLayer, patches, pixel_weights
 from .models import MILOutput, MILRewardModel, ModelConfig, build_model, output_activation
 
 
@@ -70,8 +70,6 @@ class MILEnsemble(nn.Module):
         self._step_masks = None  # this forward's masks, one per activation in order
         self._computed = None  # this forward's members (None: all)
         self._patch_ordered = False  # this forward's pixels come in the encoder's order (BagTensors)
-        self._pixels = torch.empty(0)  # the image encoder's patch buffer (`_encode`)
-        self._pixels_held = 0  # forwards whose backward (which reads the buffer) has not run yet
 
     # ----------------------------------------------------------------- members in and out
     @classmethod
@@ -164,32 +162,20 @@ class MILEnsemble(nn.Module):
         return z
 
     def _encode(self, x: torch.Tensor) -> torch.Tensor:
-        """The image encoder (`image_encoder`) of (K, N, d) raw instances -> (K, N, P*c). The
-        patches are copied once, as float32, into a buffer kept between forwards (a fresh 100 MB
-        tensor a step costs more in page faults than the copy), then `image_encoder.PatchLayer`.
-        The backward reads the buffer, so a second forward before it (two losses, one backward)
-        copies into a fresh tensor instead; a graph dropped without its backward leaves every
-        later forward doing so (slower, never wrong)."""
+        """The image encoder (`image_encoder`) of (K, N, d) raw instances -> (K, N, P*c):
+        `image_encoder.PatchLayer` on their patches, which are the image values as they are when
+        they come in the encoder's order (`patch_ordered`: a `BagTensors` of `patch_layout`),
+        else a copy of them in that order."""
         cfg = self.config
         (h, w, c), p = cfg.image_shape, cfg.patch
         K, N = x.shape[:2]
-        size = K * N * h * w * c
-        grad = torch.is_grad_enabled()
-        if grad and self._pixels_held:  # a forward before the last one's backward (feedback both): its own copy
-            buf = torch.empty(size)
+        pixels = x[..., :cfg.image_values]
+        if self._patch_ordered:
+            pixels = pixels.reshape(K, N, (h // p) * (w // p), p * p * c)
         else:
-            if self._pixels.numel() < size:
-                self._pixels = torch.empty(size)
-            buf = self._pixels[:size]
-        if self._patch_ordered:  # stored in the encoder's order (BagTensors): a plain copy
-            buf.view(K, N, -1).copy_(x[..., :cfg.image_values])
-        else:
-            buf.view(K, N, h // p, w // p, p, p, c).copy_(patch_grid(x[..., :cfg.image_values], cfg.image_shape, p))
-        flat = buf.view(K, N * (h // p) * (w // p), p * p * c)
+            pixels = patches(pixels, cfg.image_shape, p)
         weight, bias = pixel_weights(self._p("encoder__weight"), self._p("encoder__bias"))
-        if grad:
-            self._pixels_held += 1  # until PatchLayer's backward has run
-        return PatchLayer.apply(flat, weight, bias, self if grad else None).view(K, N, -1)
+        return PatchLayer.apply(pixels, weight, bias).view(K, N, -1)
 
     def _head_out(self, z: torch.Tensor) -> torch.Tensor:
         """(K, N, in) -> (K, N) in label units."""
