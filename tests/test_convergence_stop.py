@@ -92,10 +92,10 @@ def test_members_that_are_done_are_not_computed():
     computed = []
     forward = ens.forward
 
-    def counting(x, lengths, members=None):
+    def counting(x, lengths, members=None, patch_ordered=False):
         if ens.training:
             computed.append(3 if members is None else len(members))
-        return forward(x, lengths, members)
+        return forward(x, lengths, members, patch_ordered)
 
     ens.forward = counting
     result = train_ensemble(ens, ds, splits, cfg, seeds=[0, 1, 2], progress=False)

@@ -35,6 +35,7 @@ class PlantedRewards:
     as an ensemble of one (outputs with a leading member axis)."""
 
     members = 1
+    patch_layout = None  # no image
 
     def __init__(self, ds, c: float, noise: float = 0.0) -> None:
         self.rewards = torch.as_tensor(ds.rewards, dtype=torch.float64)
@@ -44,7 +45,7 @@ class PlantedRewards:
     def eval(self):
         return self
 
-    def __call__(self, x, lengths):
+    def __call__(self, x, lengths, patch_ordered=False):
         T = x.shape[1]
         assert x.shape[0] == len(self.rewards)  # one batch of every bag (batch_size >= n)
         r = self.rewards[:, :T] + self.c * _zero_sum_profile(T)
